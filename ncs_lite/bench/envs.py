@@ -1,0 +1,50 @@
+"""Environment throughput: transitions per second, rendering included.
+
+Reference: a bare `pybullet.getCameraImage` loop over the same scene in the same run. A
+block-rearrange step is one render plus bookkeeping, so the render is the floor of the
+cost and `ratio_to_render` says how close to that floor the environment runs.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pybullet as pb
+
+from ..envs import make
+
+
+def _rate(fn, seconds: float = 2.0) -> float:
+    """Calls per second of `fn`, timed over at least `seconds` (after a short warm-up)."""
+    for _ in range(20):
+        fn()
+    n, start = 0, time.perf_counter()
+    while (elapsed := time.perf_counter() - start) < seconds:
+        for _ in range(50):
+            fn()
+        n += 50
+    return n / elapsed
+
+
+def run(seconds: float = 2.0) -> dict:
+    # PyBullet's TinyRenderer is single-threaded: this is a one-core figure.
+    results = {}
+    env = make("block-rearrange", num_objects=4, horizon_multiplier=1e6)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    step_rate = _rate(lambda: env.step(env.random_pick_and_move(rng)), seconds)
+    s = env.config.image_size
+
+    def bare_render():
+        pb.getCameraImage(s, s, env._view, env._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
+                          physicsClientId=env._client)
+
+    render_rate = _rate(bare_render, seconds)
+    env.close()
+    results["block-rearrange"] = {
+        "transitions_per_s": round(step_rate, 1),
+        "bare_render_per_s": round(render_rate, 1),
+        "ratio_to_render": round(step_rate / render_rate, 3),
+        "targets": {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 300"},
+    }
+    return results

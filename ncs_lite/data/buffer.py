@@ -1,0 +1,161 @@
+"""The experience buffer: short random 'video demonstrations' stored as compressed shards.
+
+Each episode has `frames` = 5 images and 4 pick-and-move actions; each action moves one
+random cube to a random free cell (Appendix A, DESIGN.md). A buffer directory holds
+
+    manifest.json        what was asked for (env config, episodes, seed, format, versions)
+    shard-00000.npz ...  `shard_size` episodes each, written atomically
+
+Episode e is generated from `SeedSequence([seed, e])` alone, so the buffer does not depend
+on the shard size or on where an interrupted collection stopped: `collect` skips finished
+shards and writes the rest, which gives byte-identical arrays to an uninterrupted run.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..envs import make
+from ..utils import atomic_path, atomic_write_json, cache_dir, package_versions, progress
+
+FORMAT = 1
+FRAMES = 5  # frames per episode: 4 actions
+ARRAYS = ("frames", "actions", "positions", "masks", "colors", "moved")
+
+
+def _manifest(env: str, episodes: int, num_objects: int, seed: int, shard_size: int) -> dict:
+    probe = make(env, num_objects=num_objects)
+    env_config = probe.describe()
+    probe.close()
+    return {"format": FORMAT, "env": env_config, "episodes": episodes, "seed": seed,
+            "frames": FRAMES, "shard_size": shard_size}
+
+
+def _check(name: str, value: int, low: int = 1) -> int:
+    if not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def record_episode(env, seed_seq: np.random.SeedSequence) -> dict[str, np.ndarray]:
+    """Roll one random pick-and-move episode. Returns per-episode arrays (see load_buffer)."""
+    env_seed, action_seed = seed_seq.generate_state(2)
+    rng = np.random.default_rng(action_seed)
+    obs, info = env.reset(seed=int(env_seed))
+    frames, positions, masks, actions, moved = [obs["image"]], [info["positions"]], [info["masks"]], [], []
+    for _ in range(FRAMES - 1):
+        action = env.random_pick_and_move(rng)
+        obs, _, _, _, info = env.step(action)
+        frames.append(obs["image"]); positions.append(info["positions"]); masks.append(info["masks"])
+        actions.append(action); moved.append(info["moved"])
+    return {"frames": np.stack(frames), "actions": np.stack(actions).astype(np.float32),
+            "positions": np.stack(positions).astype(np.float32), "masks": np.stack(masks),
+            "colors": info["colors"].astype(np.float32), "moved": np.asarray(moved, np.int64)}
+
+
+def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_objects: int = 4,
+            seed: int = 0, shard_size: int = 100) -> Path:
+    """Collect (or resume collecting) a buffer of `episodes` random episodes into `out`."""
+    episodes, shard_size = _check("episodes", episodes), _check("shard_size", shard_size)
+    seed = _check("seed", seed, low=0)
+    out = Path(out)
+    manifest = _manifest(env, episodes, num_objects, seed, shard_size)
+    path = out / "manifest.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        diff = {k: (old.get(k), v) for k, v in manifest.items() if old.get(k) != v}
+        if diff:
+            raise ValueError(f"{out} holds a different buffer (stored vs asked: {diff}); "
+                             "use another --out or delete it")
+    else:
+        atomic_write_json(path, {**manifest, "versions": package_versions()})
+
+    n_shards = -(-episodes // shard_size)
+    todo = [s for s in range(n_shards) if not (out / f"shard-{s:05d}.npz").exists()]
+    bar = progress(total=episodes, desc=f"collect {env}", unit="ep",
+                   initial=episodes - sum(_shard_len(s, episodes, shard_size) for s in todo))
+    env_ = make(env, num_objects=num_objects)
+    try:
+        for s in todo:
+            eps = []
+            for e in range(s * shard_size, s * shard_size + _shard_len(s, episodes, shard_size)):
+                eps.append(record_episode(env_, np.random.SeedSequence([seed, e])))
+                bar.update(1)
+            arrays = {k: np.stack([ep[k] for ep in eps]) for k in ARRAYS}
+            with atomic_path(out / f"shard-{s:05d}.npz") as tmp, open(tmp, "wb") as f:
+                np.savez_compressed(f, **arrays)
+    finally:
+        env_.close()
+        bar.close()
+    return out
+
+
+def _shard_len(s: int, episodes: int, shard_size: int) -> int:
+    return min(shard_size, episodes - s * shard_size)
+
+
+def load_manifest(directory: str | Path) -> dict:
+    path = Path(directory) / "manifest.json"
+    if not path.exists():
+        raise FileNotFoundError(f"no buffer at {directory} (missing manifest.json); "
+                                "create one with `python -m ncs_lite collect`")
+    return json.loads(path.read_text())
+
+
+def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
+    """All episodes of a finished buffer as arrays (E = episodes, k = cubes):
+
+    frames (E, 5, 64, 64, 3) uint8, actions (E, 4, 6) float32, positions (E, 5, k, 3),
+    masks (E, 5, k, 64, 64) bool, colors (E, k, 3), moved (E, 4) int64.
+    """
+    directory = Path(directory)
+    m = load_manifest(directory)
+    n_shards = -(-m["episodes"] // m["shard_size"])
+    missing = [s for s in range(n_shards) if not (directory / f"shard-{s:05d}.npz").exists()]
+    if missing:
+        raise ValueError(f"buffer {directory} is incomplete: {len(missing)} of {n_shards} shards "
+                         "missing; rerun the same `collect` command to resume it")
+    parts = {k: [] for k in ARRAYS}
+    for s in range(n_shards):
+        with np.load(directory / f"shard-{s:05d}.npz") as z:
+            for k in ARRAYS:
+                parts[k].append(z[k])
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+class EpisodeDataset(torch.utils.data.Dataset):
+    """(frames, actions) windows of `window` consecutive frames from a buffer.
+
+    item: {"frames": uint8 (T, 64, 64, 3), "actions": float32 (T-1, 6)} with T = window.
+    Every start offset of every episode is one item: len = E x (5 - T + 1).
+    """
+
+    def __init__(self, directory: str | Path, window: int = FRAMES):
+        self.buffer = load_buffer(directory)
+        if not isinstance(window, int) or not 1 <= window <= FRAMES:
+            raise ValueError(f"window must be an integer in 1..{FRAMES}, got {window!r}")
+        self.window = window
+        self.frames = torch.from_numpy(self.buffer["frames"])
+        self.actions = torch.from_numpy(self.buffer["actions"])
+        self.starts = FRAMES - window + 1
+
+    def __len__(self) -> int:
+        return len(self.frames) * self.starts
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} windows")
+        e, t = divmod(i % len(self), self.starts)
+        return {"frames": self.frames[e, t:t + self.window],
+                "actions": self.actions[e, t:t + self.window - 1]}
+
+
+def cached_buffer(episodes: int, env: str = "block-rearrange", num_objects: int = 4,
+                  seed: int = 0) -> Path:
+    """A buffer in the cache folder, keyed by its config and the data format: collected on
+    first use, resumed if interrupted, reused afterwards."""
+    path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}"
+    return collect(path, episodes=episodes, env=env, num_objects=num_objects, seed=seed)

@@ -1,0 +1,282 @@
+"""Block-rearrange (Appendix C): k cubes on a 4x4 grid, moved by pick-and-move actions.
+
+The scene is rendered by PyBullet's TinyRenderer in DIRECT mode (headless, CPU). Objects
+never need physics: a pick-and-move teleports the picked cube to the grid cell nearest to
+`w + dw`, so a step costs one render. Arena coordinates are metres, origin at the grid
+centre, z up; the camera looks straight down with +y at the top of the image.
+
+Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored (fixed
+height, as in the paper). Semantics, in order:
+  1. pick: the cube whose centre is within `pick_threshold` of `w` (x, y); none -> no-op.
+  2. place: snap `w + dw` to the nearest cell; a target outside the grid (further than half
+     a cell beyond the outer cells) or occupied by another cube -> no-op.
+A constraint holds when its cube is within `success_threshold` of its goal position.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+from gymnasium import spaces
+
+# Eight colours far apart in RGB, so up to 8 cubes are always distinguishable.
+PALETTE = np.array([
+    [0.90, 0.10, 0.10],  # red
+    [0.10, 0.75, 0.15],  # green
+    [0.15, 0.30, 0.95],  # blue
+    [0.95, 0.85, 0.10],  # yellow
+    [0.85, 0.15, 0.85],  # magenta
+    [0.10, 0.85, 0.90],  # cyan
+    [0.98, 0.55, 0.05],  # orange
+    [0.98, 0.98, 0.98],  # white
+], dtype=np.float32)
+FLOOR_RGB = (0.35, 0.35, 0.38)
+
+
+@dataclass(frozen=True)
+class BlockRearrangeConfig:
+    """Everything that defines a block-rearrange task distribution (stored with data)."""
+
+    num_objects: int = 4
+    goal: str = "complete"            # "complete": every cube moves; "partial": a subset
+    num_constrained: int | None = None  # partial goals: how many cubes are constrained
+    horizon_multiplier: float = 4.0   # horizon = ceil(multiplier x minimum steps)
+    action_noise: float = 0.0         # std (m) of Gaussian noise added to (w, dw) each step
+    grid_size: int = 4                # cells per side: |S| = grid_size ** 2
+    cell: float = 0.1                 # cell pitch (m)
+    cube: float = 0.06                # cube edge (m)
+    pick_threshold: float = 0.05      # max |w - centre| (x, y) to pick a cube
+    success_threshold: float = 0.05   # max |position - goal| for a satisfied constraint
+    image_size: int = 64
+
+    def __post_init__(self):
+        cells = self.grid_size ** 2
+        if self.goal not in ("complete", "partial"):
+            raise ValueError(f"goal must be 'complete' or 'partial', got {self.goal!r}")
+        if not 1 <= self.num_objects <= len(PALETTE):
+            raise ValueError(f"num_objects must be in 1..{len(PALETTE)}, got {self.num_objects}")
+        if 2 * self.constrained > cells:
+            raise ValueError(
+                f"{self.constrained} constrained cubes need {2 * self.constrained} distinct "
+                f"cells (start and goal) but the grid has {cells}")
+        if self.num_constrained is not None and not 1 <= self.num_constrained <= self.num_objects:
+            raise ValueError(f"num_constrained must be in 1..num_objects={self.num_objects}, "
+                             f"got {self.num_constrained}")
+        if self.goal == "complete" and self.num_constrained not in (None, self.num_objects):
+            raise ValueError("complete goals constrain every cube; leave num_constrained unset "
+                             f"(got {self.num_constrained})")
+        if self.horizon_multiplier <= 0:
+            raise ValueError(f"horizon_multiplier must be > 0, got {self.horizon_multiplier}")
+        if self.action_noise < 0 or not np.isfinite(self.action_noise):
+            raise ValueError(f"action_noise must be a finite std >= 0, got {self.action_noise}")
+
+    @property
+    def constrained(self) -> int:
+        if self.goal == "complete":
+            return self.num_objects
+        return self.num_constrained if self.num_constrained is not None else max(1, self.num_objects // 2)
+
+    @property
+    def half_extent(self) -> float:
+        """Half the grid's width: cells sit at +-(i + 0.5) * cell around the origin."""
+        return self.grid_size * self.cell / 2
+
+
+class BlockRearrange(gym.Env):
+    """Goal-conditioned block rearrangement with image observations (see module docstring).
+
+    Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
+    info: ground truth for metrics and the oracle only (no learned agent may read it):
+      positions (k, 3), colors (k, 3), goal_positions (k, 3), constrained (k,) bool,
+      masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
+      -1 for a no-op), min_steps, horizon, is_success.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
+                 horizon_multiplier: float = 4.0, action_noise: float = 0.0,
+                 render_mode: str | None = None, **kwargs):
+        self.config = BlockRearrangeConfig(num_objects=num_objects, goal=goal,
+                                           num_constrained=num_constrained,
+                                           horizon_multiplier=horizon_multiplier,
+                                           action_noise=action_noise, **kwargs)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        cfg = self.config
+        g = cfg.grid_size
+        coords = (np.arange(g) - (g - 1) / 2) * cfg.cell
+        # cells[i] = (x, y) of cell i, row-major from the bottom-left.
+        self.cells = np.stack(np.meshgrid(coords, coords, indexing="xy"), -1).reshape(-1, 2)
+        self.cells = self.cells.astype(np.float32)
+
+        # w spans the grid; dw spans twice that, so off-grid targets are reachable.
+        r = cfg.half_extent
+        self.action_space = spaces.Box(
+            low=np.array([-r, -r, 0.0, -2 * r, -2 * r, -0.1], np.float32),
+            high=np.array([r, r, 0.1, 2 * r, 2 * r, 0.1], np.float32), dtype=np.float32)
+        img = spaces.Box(0, 255, (cfg.image_size, cfg.image_size, 3), np.uint8)
+        self.observation_space = spaces.Dict({"image": img, "goal": img})
+
+        self._client = pb.connect(pb.DIRECT)
+        self._build_scene()
+        self._cell_of = np.zeros(cfg.num_objects, np.int64)   # current cell of each cube
+        self._goal_cell = np.zeros(cfg.num_objects, np.int64)
+        self._constrained = np.zeros(cfg.num_objects, bool)
+        self._colors = PALETTE[: cfg.num_objects].copy()
+        self._goal_image = self._image = None
+        self._steps = 0
+
+    # ----------------------------------------------------------------- scene
+    def _build_scene(self):
+        cfg, c = self.config, self._client
+        floor = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[0.5, 0.5, 0.005],
+                                     rgbaColor=[*FLOOR_RGB, 1], physicsClientId=c)
+        pb.createMultiBody(0, -1, floor, basePosition=[0, 0, -0.005], physicsClientId=c)
+        self._bodies = []
+        for i in range(cfg.num_objects):
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[cfg.cube / 2] * 3,
+                                       rgbaColor=[*PALETTE[i], 1], physicsClientId=c)
+            self._bodies.append(pb.createMultiBody(0, -1, vis, physicsClientId=c))
+        self._body_index = {b: i for i, b in enumerate(self._bodies)}
+        # Near-orthographic top-down view: a far camera with a narrow field of view.
+        dist = 3.0
+        margin = cfg.half_extent + 0.04
+        fov = float(np.degrees(2 * np.arctan(margin / (dist - cfg.cube))))
+        self._view = pb.computeViewMatrix([0, 0, dist], [0, 0, 0], [0, 1, 0])
+        self._proj = pb.computeProjectionMatrixFOV(fov, 1.0, dist - 0.5, dist + 0.5)
+
+    def _place(self, cells_of, visible=None):
+        cfg = self.config
+        for i, b in enumerate(self._bodies):
+            if visible is not None and not visible[i]:
+                xyz = [10.0, 10.0, -5.0]  # out of the camera's frustum
+            else:
+                x, y = self.cells[cells_of[i]]
+                xyz = [float(x), float(y), cfg.cube / 2]
+            pb.resetBasePositionAndOrientation(b, xyz, [0, 0, 0, 1], physicsClientId=self._client)
+
+    def _render(self):
+        """One TinyRenderer pass -> (H, W, 3) uint8 image and (k, H, W) bool masks."""
+        s = self.config.image_size
+        _, _, rgba, _, seg = pb.getCameraImage(
+            s, s, self._view, self._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
+            physicsClientId=self._client)
+        rgb = np.asarray(rgba, np.uint8).reshape(s, s, 4)[..., :3].copy()
+        seg = np.asarray(seg).reshape(s, s)
+        masks = seg[None] == np.asarray(self._bodies)[:, None, None]
+        return rgb, masks
+
+    # ------------------------------------------------------------------- API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        cfg, rng = self.config, self.np_random
+        k, m = cfg.num_objects, cfg.constrained
+        colours = rng.choice(len(PALETTE), size=k, replace=False)
+        self._colors = PALETTE[colours].copy()
+        for b, rgb in zip(self._bodies, self._colors):
+            pb.changeVisualShape(b, -1, rgbaColor=[*rgb, 1], physicsClientId=self._client)
+        # Start cells for all k cubes plus m goal cells, all distinct: goals avoid starts.
+        cells = rng.choice(len(self.cells), size=k + m, replace=False)
+        self._cell_of = cells[:k].copy()
+        self._constrained = np.zeros(k, bool)
+        self._constrained[rng.choice(k, size=m, replace=False)] = True
+        self._goal_cell = self._cell_of.copy()
+        self._goal_cell[self._constrained] = cells[k:]
+        self.min_steps = int(m)
+        self.horizon = max(1, int(np.ceil(cfg.horizon_multiplier * self.min_steps)))
+        self._steps = 0
+        # The goal image shows only the constrained cubes, at their goal cells.
+        self._place(self._goal_cell, visible=self._constrained)
+        self._goal_image, self._goal_masks = self._render()
+        self._place(self._cell_of)
+        return self._observe(moved=-1)
+
+    def step(self, action):
+        action = self._validate_action(action)
+        cfg = self.config
+        if cfg.action_noise > 0:
+            action = action + self.np_random.normal(0.0, cfg.action_noise, 6).astype(np.float32)
+        moved = self._apply(action)
+        if moved >= 0:
+            self._place(self._cell_of)
+        self._steps += 1
+        obs, info = self._observe(moved)
+        terminated = bool(info["is_success"])
+        truncated = (not terminated) and self._steps >= self.horizon
+        return obs, float(terminated), terminated, truncated, info
+
+    def render(self):
+        return self._image.copy() if self.render_mode == "rgb_array" else None
+
+    def close(self):
+        if getattr(self, "_client", None) is not None:
+            pb.disconnect(physicsClientId=self._client)
+            self._client = None
+
+    # --------------------------------------------------------------- helpers
+    def _validate_action(self, action) -> np.ndarray:
+        try:
+            a = np.asarray(action, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"action must be 6 numbers (w, dw), got {action!r}") from exc
+        if a.shape != (6,):
+            raise ValueError(f"action must have shape (6,) = (w, dw), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        return a
+
+    def _apply(self, action: np.ndarray) -> int:
+        """Pick and move; return the index of the moved cube, or -1 for a no-op."""
+        cfg = self.config
+        w, target = action[:2], action[:2] + action[3:5]
+        centres = self.cells[self._cell_of]
+        dist = np.linalg.norm(centres - w, axis=1)
+        picked = int(np.argmin(dist))
+        if dist[picked] > cfg.pick_threshold:
+            return -1
+        if np.any(np.abs(target) > cfg.half_extent):
+            return -1  # off-grid
+        cell = int(np.argmin(np.linalg.norm(self.cells - target, axis=1)))
+        if cell in self._cell_of:
+            return -1  # occupied (including by the picked cube itself)
+        self._cell_of[picked] = cell
+        return picked
+
+    def _observe(self, moved: int):
+        self._image, masks = self._render()
+        cfg = self.config
+        z = np.full((cfg.num_objects, 1), cfg.cube / 2, np.float32)
+        pos = np.concatenate([self.cells[self._cell_of], z], 1)
+        goal = np.concatenate([self.cells[self._goal_cell], z], 1)
+        satisfied = np.linalg.norm(pos - goal, axis=1) <= cfg.success_threshold
+        info = {
+            "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
+            "constrained": self._constrained.copy(), "masks": masks,
+            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved),
+            "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
+            "is_success": bool(np.all(satisfied[self._constrained])),
+        }
+        return {"image": self._image.copy(), "goal": self._goal_image.copy()}, info
+
+    # ------------------------------------------------------- for data + tests
+    def free_cells(self) -> np.ndarray:
+        return np.setdiff1d(np.arange(len(self.cells)), self._cell_of)
+
+    def pick_and_move(self, obj: int, cell: int) -> np.ndarray:
+        """The action that moves cube `obj` to grid cell `cell` (no noise): (w, dw)."""
+        w = self.cells[self._cell_of[obj]]
+        dw = self.cells[cell] - w
+        h = self.config.cube / 2
+        return np.array([w[0], w[1], h, dw[0], dw[1], 0.0], np.float32)
+
+    def random_pick_and_move(self, rng: np.random.Generator) -> np.ndarray:
+        """A 'video demonstration' action: a random cube to a random free cell."""
+        obj = int(rng.integers(self.config.num_objects))
+        return self.pick_and_move(obj, int(rng.choice(self.free_cells())))
+
+    def describe(self) -> dict:
+        return {"env": "block-rearrange", **asdict(self.config)}

@@ -1,0 +1,120 @@
+"""Small shared helpers: seeding, progress bars, atomic writes, paths, versions.
+
+Every long job in the kit writes through `atomic_write`/`atomic_torch_save` so an
+interrupted run never leaves a half-written file behind, and every long loop goes
+through `progress` so CI can silence all bars with one setting (NCS_LITE_PROGRESS=0).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import random
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+REPO_DIR = PACKAGE_DIR.parent
+
+
+def seed_everything(seed: int) -> np.random.Generator:
+    """Seed Python, NumPy and torch (if imported); return a fresh NumPy Generator.
+
+    Environments take their own seed through `env.reset(seed=...)`.
+    """
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    random.seed(int(seed))
+    np.random.seed(int(seed) % 2**32)
+    if "torch" in sys.modules:
+        import torch
+
+        torch.manual_seed(int(seed))
+    return np.random.default_rng(int(seed))
+
+
+def progress_enabled() -> bool:
+    """Bars are on unless NCS_LITE_PROGRESS=0 (set by CI and `make test`)."""
+    return os.environ.get("NCS_LITE_PROGRESS", "1") not in ("0", "false", "no")
+
+
+def progress(iterable=None, **kwargs):
+    """`tqdm.auto.tqdm` that honours NCS_LITE_PROGRESS (notebook widget or terminal bar)."""
+    from tqdm.auto import tqdm
+
+    kwargs.setdefault("disable", not progress_enabled())
+    kwargs.setdefault("dynamic_ncols", True)
+    return tqdm(iterable, **kwargs)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path in the target's folder; rename it over `path` on success.
+
+    os.replace is atomic on POSIX, so readers see either the old file or the new one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def atomic_write_json(path: str | os.PathLike, obj) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def atomic_torch_save(obj, path: str | os.PathLike) -> None:
+    import torch
+
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of the packages whose behaviour shapes data and results."""
+    from importlib import metadata
+
+    out = {"python": sys.version.split()[0]}
+    for name in ("ncs-lite", "numpy", "torch", "pybullet", "mujoco", "gymnasium", "scipy"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def git_commit() -> str:
+    """The kit's commit (with '+dirty' for uncommitted changes), or 'unknown' outside git."""
+    try:
+        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_DIR,
+                             capture_output=True, text=True, timeout=5, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=REPO_DIR, capture_output=True, text=True, timeout=5).stdout
+        return sha + ("+dirty" if dirty.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def figures_dir() -> Path:
+    """Where notebooks write figures: $NCS_LITE_FIGURES or <repo>/figures."""
+    return Path(os.environ.get("NCS_LITE_FIGURES", REPO_DIR / "figures"))
+
+
+def cache_dir() -> Path:
+    """Where generated data and checkpoints are cached: $NCS_LITE_CACHE or <repo>/.cache."""
+    return Path(os.environ.get("NCS_LITE_CACHE", REPO_DIR / ".cache"))
