@@ -6,7 +6,7 @@ PRESET   ?= reduced
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9][0-9]_*.ipynb))
 BUILD    := build
 
-.PHONY: setup reproduce test bench exercises clean
+.PHONY: setup reproduce test bench clean
 
 setup: $(STAMP)
 
@@ -37,7 +37,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	mkdir -p $(BUILD)/bench
-	for b in envs train kmeans; do \
+	for b in envs train kmeans ncs; do \
 	  $(PY) -m ncs_lite bench $$b --out $(BUILD)/bench/$$b.json || exit 1; \
 	done
 

@@ -6,7 +6,21 @@ ICLR 2023 (arXiv 2303.11373). The stages live in one subpackage each:
 
     envs/        the environments of Appendix C (gymnasium)
     data/        the experience buffer of random video demonstrations
+    models/      dSLATE: dVAE, slot attention, transformer decoder, dynamics
+    training.py  training dSLATE; inference.py: `load_dslate`
+    ncs/         k-means, the transition graph (isolate, cluster, bind), the agent
+    baselines/   the methods NCS is compared with (Appendix B)
+    evaluation.py  the seeded task sets and success statistics every method shares
     figures.py   save_fig and plotting helpers for the notebooks
     bench/       `python -m ncs_lite bench ...` benchmarks
 """
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # `ncs_lite.load_dslate` without importing torch for users of the environments alone.
+    if name in ("load_dslate", "SHIPPED_CHECKPOINT"):
+        from . import inference
+
+        return getattr(inference, name)
+    raise AttributeError(f"module 'ncs_lite' has no attribute {name!r}")

@@ -24,6 +24,42 @@ def _bench(args):
     print(json.dumps(run(args.name, args.out), indent=2))
 
 
+def _graph(args):
+    from .data import load_buffer
+    from .ncs.graph import graph_from_buffer
+    from .ncs.perception import DSlatePerception, OraclePerception
+
+    if (args.checkpoint is None) == (not args.oracle):
+        raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
+    perception = OraclePerception() if args.oracle else DSlatePerception(_load_model(args.checkpoint))
+    graph = graph_from_buffer(load_buffer(args.data), perception, args.clusters, seed=args.seed)
+    graph.info.update(data=str(args.data), checkpoint=args.checkpoint, oracle=args.oracle)
+    graph.save(args.out)
+    print(json.dumps({"out": args.out, "nodes": graph.num_nodes, "edges": graph.num_edges,
+                      "coverage": graph.info.get("coverage")}))
+
+
+def _load_model(path):
+    from . import load_dslate
+
+    return load_dslate(path)
+
+
+def _evaluate(args):
+    from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
+    from .ncs.graph import TransitionGraph
+
+    graph = TransitionGraph.load(args.graph) if args.graph else None
+    model = _load_model(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
+    tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
+                    num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
+                    action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
+    rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed), tasks, args.method)
+    if args.out:
+        write_csv(rows, args.out)
+    print(json.dumps(summarize(rows)[0]))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m ncs_lite", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -38,9 +74,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_collect)
 
     p = sub.add_parser("bench", help="run a benchmark, write JSON")
-    p.add_argument("name", help="envs | train | kmeans")
+    p.add_argument("name", help="envs | train | kmeans | ncs")
     p.add_argument("--out", help="JSON file to write")
     p.set_defaults(func=_bench)
+
+    p = sub.add_parser("graph", help="build the NCS transition graph of a buffer")
+    p.add_argument("--checkpoint", help="dSLATE checkpoint (learned entities)")
+    p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
+    p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
+    p.add_argument("--clusters", type=int, default=30, help="nodes (Table 4: 30 for block-rearrange)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=_graph)
+
+    p = sub.add_parser("evaluate", help="evaluate a method on a seeded task set")
+    p.add_argument("--env", default="block-rearrange")
+    p.add_argument("--method", required=True, help="ncs | ncs-oracle | random")
+    p.add_argument("--checkpoint")
+    p.add_argument("--graph")
+    p.add_argument("--num-objects", type=int, default=4)
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--goal", default="complete", help="complete | partial")
+    p.add_argument("--num-constrained", type=int)
+    p.add_argument("--horizon-multiplier", type=float, default=4.0)
+    p.add_argument("--action-noise", type=float, default=0.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="tidy CSV, one row per episode")
+    p.set_defaults(func=_evaluate)
 
     for name in COMMAND_MODULES:
         try:

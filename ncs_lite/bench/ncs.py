@@ -1,0 +1,57 @@
+"""NCS decision latency: wall time of one `act` (perception + align + select + bind).
+
+Measured for the oracle (ground-truth entities: the planning cost alone) and, when the
+shipped dSLATE checkpoint is present, for learned NCS (slot inference with 7 iterations
+included) on 4- and 7-object scenes; the bare `model.infer` of one image, measured in the
+same run, is the reference that tells how much of a decision is perception.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def _per_call(fn, n: int) -> float:
+    fn()  # warm-up
+    start = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return (time.perf_counter() - start) / n
+
+
+def run(steps: int = 50) -> dict:
+    from ..inference import SHIPPED_CHECKPOINT, load_dslate
+    from ..data import cached_buffer, load_buffer
+    from ..evaluation import TaskSet, agent_factory
+    from ..ncs.graph import graph_from_buffer
+    from ..ncs.perception import DSlatePerception, OraclePerception
+
+    buffer = load_buffer(cached_buffer(1000))
+    oracle_graph = graph_from_buffer(buffer, OraclePerception(), clusters=30)
+    ckpt = SHIPPED_CHECKPOINT
+    model = load_dslate(ckpt) if ckpt.exists() else None
+    learned_graph = None
+    if model is not None:
+        learned_graph = graph_from_buffer(load_buffer(cached_buffer(200)), DSlatePerception(model), clusters=30)
+    out = {}
+    for k in (4, 7):
+        env = TaskSet(num_objects=k).make_env()
+        obs, info = env.reset(seed=0)
+        row = {}
+        agent = agent_factory("ncs-oracle", graph=oracle_graph)(env)
+        agent.reset(obs, info)
+        row["oracle_ms_per_decision"] = 1e3 * _per_call(lambda: agent.act(obs, info), steps)
+        if model is not None:
+            agent = agent_factory("ncs", graph=learned_graph, model=model)(env)
+            agent.reset(obs, info)
+            row["ncs_ms_per_decision"] = 1e3 * _per_call(lambda: agent.act(obs, info), steps)
+            slots = agent.perception.num_slots
+            row["slot_inference_ms"] = 1e3 * _per_call(
+                lambda: model.infer(obs["image"][None], iterations=7, num_slots=slots), steps)
+            row["perception_share"] = row["slot_inference_ms"] / row["ncs_ms_per_decision"]
+        out[f"{k}_objects"] = {key: round(v, 3) for key, v in row.items()}
+        env.close()
+    if model is None:
+        out["note"] = f"no checkpoint at {ckpt}: learned NCS not measured"
+    return out

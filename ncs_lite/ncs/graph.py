@@ -1,0 +1,193 @@
+"""The NCS transition graph (Section 4.1, Appendix A.2, Tables 3-4): isolate, cluster, bind.
+
+From a buffer of transitions (entity states before and after, and the action taken):
+
+1. **isolate**: the moved entity of a transition is argmax_k d(s_t^k, s_{t+1}^k), d the
+   cosine distance (Table 3). Every other entity is assumed untouched.
+2. **cluster**: K-means over the isolated states (both ends of every isolated transition)
+   gives the nodes; the metric is IoU for attention masks and squared Euclidean for slot
+   states (Table 3); the number of nodes is Table 4's (30 for block-rearrange).
+3. **bind**: a state's node is its nearest centroid (cosine for masks, squared Euclidean
+   for slot states). Each isolated transition adds the edge bind(s_t) -> bind(s_{t+1}),
+   labelled with its action; identical actions are merged with a count.
+
+Shapes: M transitions, K entities per frame, D state features, N nodes.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..utils import atomic_torch_save
+from .kmeans import assign, kmeans, pairwise_distances
+
+# Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
+METRICS_BY_STATE = {
+    "mask": {"isolate": "cosine", "cluster": "iou", "bind": "cosine"},
+    "slot": {"isolate": "cosine", "cluster": "sqeuclidean", "bind": "sqeuclidean"},
+}
+CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
+ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
+
+
+def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
+    """Index of the moved entity per transition: argmax_k cosine distance, (M,) int64.
+
+    states_t, states_t1: (M, K, D), entity k at t and t+1 (same k = same entity).
+    """
+    if states_t.shape != states_t1.shape or states_t.ndim != 3:
+        raise ValueError("states_t and states_t1 must both have shape (M, K, D), got "
+                         f"{tuple(states_t.shape)} and {tuple(states_t1.shape)}")
+    cos = torch.nn.functional.cosine_similarity(states_t.float(), states_t1.float(), dim=-1, eps=1e-8)
+    return (1 - cos).argmax(dim=1)
+
+
+@dataclass
+class TransitionGraph:
+    """Nodes (centroids) and action-labelled edges between them.
+
+    centroids (N, D); edges: {(src, dst): Counter{action tuple: count}}.
+    """
+
+    centroids: torch.Tensor
+    bind_metric: str
+    edges: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)   # how it was built, coverage, counts
+
+    @property
+    def num_nodes(self) -> int:
+        return int(self.centroids.shape[0])
+
+    @property
+    def num_edges(self) -> int:
+        return len(self.edges)
+
+    def bind(self, states: torch.Tensor) -> torch.Tensor:
+        """Node of each state (..., D) -> (...) int64, nearest centroid under `bind_metric`."""
+        flat = states.reshape(-1, states.shape[-1]).float()
+        labels, _ = assign(flat, self.centroids, self.bind_metric)
+        return labels.reshape(states.shape[:-1])
+
+    def action(self, src: int, dst: int) -> np.ndarray | None:
+        """The most frequent action on edge src -> dst, or None when there is no such edge."""
+        labels = self.edges.get((int(src), int(dst)))
+        if not labels:
+            return None
+        return np.asarray(labels.most_common(1)[0][0], np.float32)
+
+    def add(self, src: torch.Tensor, dst: torch.Tensor, actions: np.ndarray) -> None:
+        for s, d, a in zip(src.tolist(), dst.tolist(), np.round(np.asarray(actions, np.float64), ACTION_DECIMALS)):
+            if s != d:   # a self-loop carries no usable transition
+                self.edges.setdefault((s, d), Counter())[tuple(float(v) for v in a)] += 1
+
+    # -------------------------------------------------------------- save/load
+    def state_dict(self) -> dict:
+        """Only tensors, strings and numbers: loads with torch.load(weights_only=True)."""
+        rows = [(s, d, a, n) for (s, d), c in sorted(self.edges.items()) for a, n in c.items()]
+        return {
+            "format": 1,
+            "centroids": self.centroids.float(),
+            "bind_metric": self.bind_metric,
+            "edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
+            "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
+            "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64),
+            "info": dict(self.info),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        atomic_torch_save(self.state_dict(), path)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TransitionGraph":
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"no graph at {path}; build one with `python -m ncs_lite graph`")
+        sd = torch.load(path, weights_only=True, map_location="cpu")
+        if not isinstance(sd, dict) or sd.get("format") != 1:
+            raise ValueError(f"{path} is not an ncs-lite transition graph (format 1)")
+        graph = cls(sd["centroids"], sd["bind_metric"], {}, sd["info"])
+        for (s, d), a, n in zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(), sd["edge_count"].tolist()):
+            graph.edges.setdefault((s, d), Counter())[tuple(round(v, ACTION_DECIMALS) for v in a)] += n
+        return graph
+
+    # ------------------------------------------------------------------ draw
+    def node_positions(self, image_size: int = 64) -> np.ndarray:
+        """(N, 2) image (x, y) of each node: the centre of mass of its centroid mask."""
+        n, d = self.centroids.shape
+        side = int(round(d ** 0.5))
+        if side * side != d:
+            raise ValueError(f"node positions need square mask centroids, got D={d}")
+        m = self.centroids.reshape(n, side, side).clamp(min=0).numpy()
+        ys, xs = np.mgrid[0:side, 0:side] + 0.5
+        total = m.sum((1, 2)) + 1e-8
+        scale = image_size / side
+        return np.stack([(m * xs).sum((1, 2)) / total, (m * ys).sum((1, 2)) / total], 1) * scale
+
+    def draw(self, ax, background: np.ndarray | None = None, max_edges: int | None = None):
+        """Nodes at the mean image position of their masks, edges as arrows (width ~ count)."""
+        pos = self.node_positions()
+        if background is not None:
+            ax.imshow(background, alpha=0.35)
+        counts = {e: sum(c.values()) for e, c in self.edges.items()}
+        ranked = sorted(counts, key=counts.get, reverse=True)[:max_edges]
+        top = max(counts.values()) if counts else 1
+        for s, d in ranked:
+            ax.annotate("", xy=pos[d], xytext=pos[s], arrowprops=dict(
+                arrowstyle="->", lw=0.3 + 1.5 * counts[(s, d)] / top, alpha=0.5, color="tab:blue"))
+        ax.scatter(pos[:, 0], pos[:, 1], s=30, c="tab:red", zorder=3)
+        for i, (x, y) in enumerate(pos):
+            ax.text(x + 0.8, y - 0.8, str(i), fontsize=6, zorder=4)
+        ax.set_xlim(0, 64); ax.set_ylim(64, 0); ax.set_aspect("equal")
+
+
+def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.ndarray, *,
+                clusters: int, state: str = "mask", seed: int = 0, max_iter: int = 100,
+                true_entity: np.ndarray | None = None) -> TransitionGraph:
+    """isolate -> cluster -> bind over M transitions of K entity states (M, K, D).
+
+    actions (M, 6). `true_entity` (M,) optional: for each transition, the entity index k
+    that truly moved (from ground truth); it gives the graph's coverage, the fraction of
+    isolated transitions that found the right entity.
+    """
+    if state not in METRICS_BY_STATE:
+        raise ValueError(f"state must be one of {sorted(METRICS_BY_STATE)}, got {state!r}")
+    metrics = METRICS_BY_STATE[state]
+    actions = np.asarray(actions, np.float32)
+    if actions.shape != (states_t.shape[0], 6):
+        raise ValueError(f"actions must have shape ({states_t.shape[0]}, 6), got {actions.shape}")
+    moved = isolate(states_t, states_t1)                               # (M,)
+    rows = torch.arange(len(moved))
+    before, after = states_t[rows, moved].float(), states_t1[rows, moved].float()  # (M, D)
+    result = kmeans(torch.cat([before, after]), clusters, metrics["cluster"], seed=seed,
+                    max_iter=max_iter)
+    graph = TransitionGraph(result.centroids, metrics["bind"])
+    graph.add(graph.bind(before), graph.bind(after), actions)
+    graph.info = {"transitions": int(len(moved)), "clusters": int(clusters), "state": state,
+                  "metrics": metrics, "seed": seed, "kmeans_inertia": result.inertia,
+                  "kmeans_iterations": result.n_iter}
+    if true_entity is not None:
+        graph.info["coverage"] = float((moved.numpy() == np.asarray(true_entity)).mean())
+    return graph
+
+
+def coverage_of_moves(graph: TransitionGraph, starts: torch.Tensor, goals: torch.Tensor) -> float:
+    """Fraction of (start state, goal state) pairs whose bound nodes are joined by an edge."""
+    src, dst = graph.bind(starts), graph.bind(goals)
+    return float(np.mean([(s, d) in graph.edges for s, d in zip(src.tolist(), dst.tolist())]))
+
+
+__all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
+           "coverage_of_moves", "isolate", "pairwise_distances"]
+
+
+def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
+                      state: str = "mask") -> TransitionGraph:
+    """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it."""
+    states_t, states_t1, actions, true_entity = perception.transitions(buffer)
+    return build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
+                       true_entity=true_entity)

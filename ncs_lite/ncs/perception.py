@@ -1,0 +1,110 @@
+"""Entities from observations: what NCS sees of a scene.
+
+An entity is a pair (type z, state s). The learned perception reads them off dSLATE's slots
+(state = the slot-attention mask for block-rearrange, Table 3); the oracle reads them off
+the environment's ground truth (type = colour, state = the object's segmentation mask), so
+the same graph and policy code runs on both and the gap between them is the cost of the
+learned representation.
+
+Masks are average-pooled to 16x16 = the dVAE token grid (64 / 4), so oracle and learned
+states share one feature space of D = 256.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+STATE_GRID = 16
+
+
+class Entities(NamedTuple):
+    types: torch.Tensor    # (K, Dz)
+    states: torch.Tensor   # (K, D)
+
+
+def pool_masks(masks, grid: int = STATE_GRID) -> torch.Tensor:
+    """(..., H, W) masks -> (..., grid * grid) float states (area averages)."""
+    m = torch.as_tensor(np.asarray(masks)).float()
+    lead, (h, w) = m.shape[:-2], m.shape[-2:]
+    if h % grid or w % grid:
+        raise ValueError(f"mask size {(h, w)} must be a multiple of the state grid {grid}")
+    pooled = torch.nn.functional.avg_pool2d(m.reshape(-1, 1, h, w), h // grid)
+    return pooled.reshape(*lead, grid * grid)
+
+
+class OraclePerception:
+    """Ground-truth entities (for the `ncs-oracle` agent only: it reads `info`)."""
+
+    reads_ground_truth = True
+
+    def current(self, obs, info) -> Entities:
+        return Entities(torch.as_tensor(info["colors"]).float(), pool_masks(info["masks"]))
+
+    def goal(self, obs, info) -> Entities:
+        keep = np.asarray(info["constrained"])
+        return Entities(torch.as_tensor(info["colors"][keep]).float(),
+                        pool_masks(info["goal_masks"][keep]))
+
+    def transitions(self, buffer: dict):
+        """Buffer -> (states_t, states_t1 (M, k, D), actions (M, 6), true moved entity (M,))."""
+        states = pool_masks(buffer["masks"])                          # (E, T, k, D)
+        return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
+                buffer["actions"].reshape(-1, 6), buffer["moved"].reshape(-1))
+
+
+class DSlatePerception:
+    """Learned entities from a trained dSLATE (`ncs_lite.load_dslate`).
+
+    type = z (the action-invariant half of the slot); state = the slot-attention mask at
+    token resolution (block-rearrange, Table 3) or the state half s of the slot ("slot").
+    `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
+    a scene needs at least one slot per object plus one for the background.
+    """
+
+    reads_ground_truth = False
+
+    def __init__(self, model, iterations: int = 7, num_slots: int | None = None,
+                 state: str = "mask", batch_size: int = 64):
+        if state not in ("mask", "slot"):
+            raise ValueError(f"state must be 'mask' or 'slot', got {state!r}")
+        self.model, self.iterations, self.num_slots = model, iterations, num_slots
+        self.state, self.batch_size = state, batch_size
+
+    def _split(self, r):
+        return r.types, (r.attention if self.state == "mask" else r.states)
+
+    def _entities(self, image) -> Entities:
+        r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots)
+        types, states = self._split(r)
+        return Entities(types[0].cpu().float(), states[0].cpu().float())
+
+    def current(self, obs, info=None) -> Entities:
+        return self._entities(obs["image"])
+
+    def goal(self, obs, info=None) -> Entities:
+        return self._entities(obs["goal"])
+
+    def transitions(self, buffer: dict):
+        """Buffer -> (states_t, states_t1 (M, K, D), actions (M, 6), true moved slot (M,)).
+
+        Slots follow objects through each video (frame t+1 starts from frame t's slots).
+        The true moved slot (for coverage only) is the slot whose mask overlaps the moved
+        object's ground-truth mask most at frame t.
+        """
+        frames = buffer["frames"]
+        states, attn = [], []
+        for i in range(0, len(frames), self.batch_size):
+            r = self.model.infer_video(frames[i:i + self.batch_size], iterations=self.iterations,
+                                       num_slots=self.num_slots)
+            states.append(self._split(r)[1].cpu().float())
+            attn.append(r.attention.cpu().float())
+        states, attn = torch.cat(states), torch.cat(attn)             # (E, T, K, D), (E, T, K, N)
+        gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
+        moved = torch.as_tensor(buffer["moved"])                       # (E, T-1)
+        gt_moved = torch.gather(gt[:, :-1], 2, moved[..., None, None].expand(-1, -1, 1, gt.shape[-1]))
+        overlap = (attn[:, :-1] * gt_moved).sum(-1)                     # (E, T-1, K)
+        true_slot = overlap.argmax(-1)
+        return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
+                buffer["actions"].reshape(-1, 6), true_slot.reshape(-1).numpy())

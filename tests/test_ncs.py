@@ -1,0 +1,127 @@
+"""NCS graph (isolate, cluster, bind), policy (align, select-constraint) and the harness."""
+import numpy as np
+import pytest
+import torch
+
+from ncs_lite.data import collect, load_buffer
+from ncs_lite.evaluation import (TaskSet, agent_factory, evaluate, summarize, task_seed,
+                                 wilson_interval, write_csv)
+from ncs_lite.ncs.graph import TransitionGraph, build_graph, graph_from_buffer, isolate
+from ncs_lite.ncs.perception import OraclePerception, pool_masks
+from ncs_lite.ncs.policy import align, constraint_distances
+
+
+@pytest.fixture(scope="module")
+def buffer(tmp_path_factory):
+    path = tmp_path_factory.mktemp("buf")
+    collect(path, episodes=600, seed=0)   # 2400 moves: all 240 cell pairs seen
+    return load_buffer(path)
+
+
+@pytest.fixture(scope="module")
+def oracle_graph(buffer):
+    with pytest.warns(RuntimeWarning, match="empty cluster"):   # 16 cells, 30 clusters
+        return graph_from_buffer(buffer, OraclePerception(), clusters=30)
+
+
+def test_isolate_finds_the_changed_entity():
+    st = torch.rand(5, 4, 10) + 0.1
+    st1 = st.clone()
+    moved = torch.tensor([0, 3, 1, 2, 3])
+    st1[torch.arange(5), moved] = torch.rand(5, 10) + 0.1
+    assert torch.equal(isolate(st, st1), moved)
+    with pytest.raises(ValueError, match=r"\(M, K, D\)"):
+        isolate(st, st1[:, :3])
+
+
+def test_oracle_graph_has_every_move(oracle_graph):
+    assert oracle_graph.info["coverage"] == 1.0
+    # 16 cells -> 16 distinct mask states; every cell-to-cell move is an edge (240)
+    assert oracle_graph.num_edges == 240
+    # the labelled action of an edge moves a cube between the two nodes' cells
+    (src, dst), = [e for e in oracle_graph.edges][:1]
+    pos = oracle_graph.node_positions()
+    a = oracle_graph.action(src, dst)
+    to_px = lambda xy: (np.array([xy[0], -xy[1]]) + 0.24) / 0.48 * 64   # arena -> image, approx.
+    assert np.linalg.norm(to_px(a[:2]) - pos[src]) < 4
+    assert np.linalg.norm(to_px(a[:2] + a[3:5]) - pos[dst]) < 4
+    assert oracle_graph.action(src, src) is None
+
+
+def test_graph_save_load_round_trip(oracle_graph, tmp_path):
+    path = oracle_graph.save(tmp_path / "g.pt")
+    loaded = TransitionGraph.load(path)
+    assert loaded.edges == oracle_graph.edges
+    torch.testing.assert_close(loaded.centroids, oracle_graph.centroids)
+    assert loaded.info["coverage"] == 1.0
+    torch.save({"weights": torch.zeros(2)}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not an ncs-lite transition graph"):
+        TransitionGraph.load(tmp_path / "other.pt")
+    with pytest.raises(FileNotFoundError, match="python -m ncs_lite graph"):
+        TransitionGraph.load(tmp_path / "missing.pt")
+
+
+def test_build_graph_checks_actions():
+    st = torch.rand(3, 2, 4)
+    with pytest.raises(ValueError, match=r"actions must have shape \(3, 6\)"):
+        build_graph(st, st, np.zeros((3, 5)), clusters=2)
+
+
+def test_align_matches_types_despite_permutation():
+    types = torch.eye(5)[:4] * 3
+    perm = torch.tensor([2, 0, 3, 1])
+    g, c = align(types, types[perm] + 0.01)
+    np.testing.assert_array_equal(c[np.argsort(g)], perm.numpy())
+
+
+def test_constraint_distance_zero_when_satisfied():
+    s = torch.rand(3, 8)
+    d = constraint_distances(s, torch.cat([s[:2], torch.rand(1, 8)]))
+    assert d[:2].abs().max() < 1e-6 and d[2] > 0
+
+
+def test_pool_masks():
+    m = np.zeros((2, 64, 64), bool)
+    m[0, :4, :4] = True
+    p = pool_masks(m)
+    assert p.shape == (2, 256) and p[0, 0] == 1 and p.sum() == 1
+    with pytest.raises(ValueError, match="multiple"):
+        pool_masks(np.zeros((1, 30, 30)))
+
+
+def test_wilson_interval_known_values():
+    lo, hi = wilson_interval(50, 100)
+    assert abs(lo - 0.4038) < 1e-3 and abs(hi - 0.5962) < 1e-3
+    assert wilson_interval(0, 10)[0] == 0 and wilson_interval(10, 10)[1] == pytest.approx(1)
+    with pytest.raises(ValueError):
+        wilson_interval(0, 0)
+
+
+def test_oracle_solves_tasks_and_random_does_not(oracle_graph, tmp_path):
+    tasks = TaskSet(num_objects=5, episodes=10, seed=3)
+    oracle = evaluate(agent_factory("ncs-oracle", graph=oracle_graph), tasks, "ncs-oracle")
+    rand = evaluate(agent_factory("random"), tasks, "random")
+    # identical task sets across methods
+    assert [r["task_seed"] for r in oracle] == [r["task_seed"] for r in rand]
+    assert [r["task_seed"] for r in oracle] == [task_seed(3, i) for i in range(10)]
+    s_oracle, s_rand = summarize(oracle)[0], summarize(rand)[0]
+    assert s_oracle["success"] == 1.0 and s_oracle["mean_steps"] == 5 and s_oracle["random_fraction"] == 0
+    assert s_rand["success"] == 0.0 and s_rand["random_fraction"] == 1.0
+    path = write_csv(oracle + rand, tmp_path / "r.csv")
+    assert path.read_text().splitlines()[0].startswith("method,env,num_objects")
+    assert len(path.read_text().splitlines()) == 21
+
+
+def test_oracle_partial_goals(oracle_graph):
+    tasks = TaskSet(num_objects=6, goal="partial", num_constrained=3, episodes=5)
+    s = summarize(evaluate(agent_factory("ncs-oracle", graph=oracle_graph), tasks, "o"))[0]
+    assert s["success"] == 1.0 and s["mean_steps"] == 3
+
+
+def test_agent_factory_errors():
+    with pytest.raises(ValueError, match="unknown method"):
+        agent_factory("ncs-magic")
+    with pytest.raises(ValueError, match="needs a transition graph"):
+        agent_factory("ncs-oracle")
+    with pytest.raises(ValueError, match="episodes must be"):
+        TaskSet(episodes=0)
