@@ -180,7 +180,7 @@ def test_deterministic_for_a_seed_and_batch_size_free():
     assert torch.equal(state, torch.get_rng_state())  # private generator only
     assert torch.equal(a.centroids, b.centroids) and torch.equal(a.labels, b.labels)
     assert a.inertia == b.inertia and a.n_iter == b.n_iter
-    c = kmeans(x, 4, seed=11, batch_size=7)
+    c = kmeans(x, 4, seed=11, batch_size=64)  # 150 rows: 64 + 64 + 22
     assert torch.equal(a.labels, c.labels)
     torch.testing.assert_close(a.centroids, c.centroids)
     assert not torch.equal(kmeans_plusplus(x, 4, seed=11), kmeans_plusplus(x, 4, seed=12))
