@@ -125,3 +125,26 @@ def test_agent_factory_errors():
         agent_factory("ncs-oracle")
     with pytest.raises(ValueError, match="episodes must be"):
         TaskSet(episodes=0)
+
+
+def test_cli_graph_and_evaluate(tmp_path, capsys):
+    import json
+
+    from ncs_lite.__main__ import main
+
+    collect(tmp_path / "buf", episodes=30, seed=0)
+    assert main(["graph", "--oracle", "--data", str(tmp_path / "buf"), "--clusters", "16",
+                 "--out", str(tmp_path / "g.pt")]) == 0
+    built = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert built["nodes"] == 16 and built["coverage"] == 1.0
+    assert main(["evaluate", "--method", "ncs-oracle", "--graph", str(tmp_path / "g.pt"),
+                 "--num-objects", "3", "--episodes", "4", "--out", str(tmp_path / "r.csv")]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["method"] == "ncs-oracle" and summary["episodes"] == 4
+    assert 0 <= summary["ci_low"] <= summary["success"] <= summary["ci_high"] <= 1
+    assert (tmp_path / "r.csv").exists()
+    # errors are reported, not raised
+    assert main(["graph", "--data", str(tmp_path / "buf"), "--out", str(tmp_path / "x.pt")]) == 2
+    assert "exactly one of --checkpoint" in capsys.readouterr().err
+    assert main(["evaluate", "--method", "ncs-oracle", "--episodes", "2"]) == 2
+    assert "needs a transition graph" in capsys.readouterr().err
