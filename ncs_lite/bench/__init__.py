@@ -1,1 +1,33 @@
-"""Benchmarks (`python -m ncs_lite bench ...`); each module has `run() -> dict`."""
+"""Benchmarks (`python -m ncs_lite bench NAME --out FILE.json`; `make bench` runs them all).
+
+Each benchmark measures the kit against a reference measured in the same run, so its
+figures are ratios that survive a change of machine. Timings live here, never in tests.
+"""
+from __future__ import annotations
+
+import importlib
+import platform
+import time
+
+from ..utils import atomic_write_json, git_commit, package_versions
+
+# name -> module with a `run() -> dict`
+BENCHMARKS = {
+    "envs": "ncs_lite.bench.envs",
+    "train": "ncs_lite.bench.train_step",
+    "kmeans": "ncs_lite.bench.kmeans",
+    "ncs": "ncs_lite.bench.ncs",
+}
+
+
+def run(name: str, out=None) -> dict:
+    if name not in BENCHMARKS:
+        raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHMARKS)}")
+    start = time.time()
+    result = importlib.import_module(BENCHMARKS[name]).run()
+    result["meta"] = {"benchmark": name, "seconds": round(time.time() - start, 2),
+                      "machine": platform.processor() or platform.machine(),
+                      "versions": package_versions(), "commit": git_commit()}
+    if out is not None:
+        atomic_write_json(out, result)
+    return result

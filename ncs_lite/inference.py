@@ -1,0 +1,108 @@
+"""Loading a trained dSLATE for everything downstream (NCS graph, baselines, notebooks).
+
+    model = ncs_lite.load_dslate("ncs_lite/assets/dslate_block_rearrange_reduced.pt")
+    out = model.infer(images)          # images (B, 64, 64, 3) uint8
+    out.slots, out.types, out.states, out.masks   # (B,K,D) (B,K,Dz) (B,K,Ds) (B,K,64,64)
+    next_slots = model.predict(out.slots, actions)  # actions (B, 6)
+
+`infer` checks its input (ValueError naming the bad shape or dtype and what was expected).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from .config import from_dict
+from .models.dslate import DSlate
+from .training import read_checkpoint, resolve_device
+from .utils import PACKAGE_DIR, cache_dir
+
+__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT"]
+
+# The `reduced` block-rearrange checkpoint shipped with the kit (see README for the command).
+SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
+# 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
+TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
+
+
+def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
+    """Rebuild a dSLATE from a checkpoint written by `train` (weights_only loading), in eval
+    mode on `device` (default: CUDA when available, else CPU). ValueError when the file is
+    not a dSLATE checkpoint or does not match this code."""
+    device = resolve_device(device)
+    ckpt = read_checkpoint(path, map_location=device)
+    try:
+        cfg = from_dict(ckpt["config"])
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"checkpoint {path} holds a config this code cannot use: {e}") from e
+    model = DSlate(cfg)
+    try:
+        model.load_state_dict(ckpt["model"])
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint {path} does not match this code's dSLATE "
+                         f"(preset {cfg.name!r}): {e}") from e
+    model.checkpoint_info = {k: ckpt.get(k) for k in ("step", "env", "data", "precision", "seconds",
+                                                      "last", "code_version")}
+    return model.to(device).eval()
+
+
+def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
+                  env: str = "block-rearrange") -> tuple[DSlate, Path]:
+    """The notebooks' "load the checkpoint if present, else train" step: (model, path).
+
+    Loads the shipped checkpoint unless `train_from_scratch` is set or it is missing; then
+    trains at `preset` on a cached buffer. The trained checkpoint is cached under a name
+    keyed by the config and the model code, and an interrupted training resumes.
+    """
+    import hashlib
+    import json
+
+    from .config import get_preset, to_dict
+    from .data import cached_buffer
+    from .models.dslate import MODEL_VERSION
+    from .training import train
+    from .utils import cache_dir
+
+    if not train_from_scratch and env == "block-rearrange" and SHIPPED_CHECKPOINT.exists():
+        return load_dslate(SHIPPED_CHECKPOINT), SHIPPED_CHECKPOINT
+    cfg = get_preset(preset)
+    key = hashlib.sha1((json.dumps(to_dict(cfg), sort_keys=True) + MODEL_VERSION).encode()).hexdigest()[:10]
+    out = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}-{key}.pt"
+    data = cached_buffer(cfg.train.episodes_per_epoch, env=env, seed=seed)
+    train(cfg, data, out, resume=out.exists(), env=env)
+    return load_dslate(out), out
+
+
+def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
+                  env: str = "block-rearrange", device=None) -> tuple[DSlate, Path]:
+    """The notebooks' "load the checkpoint if present, else train": returns (model, path).
+
+    * `reduced` without `train_from_scratch`: the shipped checkpoint, when present.
+    * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
+      `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
+      `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
+      reused (unless `train_from_scratch`), an interrupted one is resumed.
+    With preset="reduced", seed=0 this is the command that made the shipped checkpoint.
+    """
+    from .config import get_preset
+    from .data import cached_buffer
+    from .training import train
+
+    if preset == "reduced" and not train_from_scratch and SHIPPED_CHECKPOINT.exists():
+        return load_dslate(SHIPPED_CHECKPOINT, device), SHIPPED_CHECKPOINT
+    cfg = get_preset(preset)
+    cfg.train.seed = int(seed)
+    path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
+    resume = False
+    if path.exists() and not train_from_scratch:
+        try:
+            step = int(read_checkpoint(path)["step"])
+        except ValueError:          # from another version of the code: train afresh
+            step = -1
+        if step >= cfg.train.total_steps():
+            return load_dslate(path, device), path
+        resume = step >= 0
+    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
+    train(cfg, data, path, resume=resume, device=device, env=env)
+    return load_dslate(path, device), path

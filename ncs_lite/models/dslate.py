@@ -1,0 +1,279 @@
+"""dSLATE: SLATE (dVAE + slot attention + transformer decoder) over videos, plus dynamics.
+
+Each slot is split as [type z ; state s] (Table 2: 96 + 96). Frame 0's slots start from
+the learned Gaussian; frame t+1's slots start from frame t's, so slot k follows the same
+object through a video. The dynamics predicts s_{t+1} from all slots and the action and
+copies z, which makes the type action-invariant and the state the part that moves.
+
+Training loss for a video of T frames (per-image sums, averaged over images):
+    mse      dVAE reconstruction of every frame (sum over pixels)
+    ce       SLATE token cross-entropy of every frame decoded from its slots (sum over tokens)
+    ce_dyn   token cross-entropy of frame t+1 decoded from the *predicted* slots
+    loss     = mse + ce + ce_dyn
+As in SLATE, the transformer's targets are the dVAE's *sampled* hard tokens, detached,
+so the dVAE learns only from its reconstruction and the rest only from the tokens.
+
+Shapes: videos (B, T, H, W, 3) uint8; actions (B, T-1, A); slots (B, T, K, D);
+tokens (B, N) over a vocabulary of V; masks (B, K, H, W).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .decoder import TransformerDecoder
+from .dvae import DVAE
+from .dynamics import Dynamics
+from .slot_attention import SlotAttention
+
+__all__ = ["DSlate", "SlotInference", "MODEL_VERSION"]
+
+# Bump when a change makes old checkpoints load into a different function.
+MODEL_VERSION = "dslate-1"
+
+
+def sinusoid_2d(grid: int, dim: int) -> torch.Tensor:
+    """(1, grid*grid, dim) 2-D sine/cosine features of (row, col) with small amplitude."""
+    q = dim // 4
+    freqs = torch.exp(torch.linspace(0, -math.log(grid * 2.0), max(q, 1)))[:q] * math.pi   # (q,)
+    pos = torch.arange(grid, dtype=torch.float32) / grid
+    r, c = torch.meshgrid(pos, pos, indexing="ij")
+    feats = [f(x.flatten()[:, None] * freqs) for x in (r, c) for f in (torch.sin, torch.cos)]
+    out = torch.cat(feats, dim=1)                                   # (N, 4q)
+    out = torch.cat([out, torch.zeros(grid * grid, dim - out.shape[1])], dim=1)
+    return 0.5 * out[None]
+
+
+class SlotInference(NamedTuple):
+    """Result of `DSlate.infer`: slots (B,K,D), types (B,K,Dz), states (B,K,Ds),
+    masks (B,K,H,W) summing to 1 over K, attention (B,K,N) at token resolution."""
+    slots: torch.Tensor
+    types: torch.Tensor
+    states: torch.Tensor
+    masks: torch.Tensor
+    attention: torch.Tensor
+
+
+class DSlate(nn.Module):
+    def __init__(self, cfg):
+        super().__init__()
+        self.cfg = cfg
+        V, N, d = cfg.dvae.vocab_size, cfg.num_tokens, cfg.decoder.hidden
+        sc = cfg.slots
+        self.type_dim, self.state_dim, self.slot_dim = sc.type_dim, sc.state_dim, sc.slot_dim
+        self.dvae = DVAE(V, cfg.dvae.hidden, cfg.downsample, cfg.image_size)
+        self.token_emb = nn.Embedding(V, d)
+        # learned positions (SLATE), initialised with 2-D sinusoids so that where a token is
+        # is informative from the first step (a from-scratch table is slow to learn on a CPU)
+        self.pos_emb = nn.Parameter(sinusoid_2d(cfg.grid, d))
+        self.mask_emb = nn.Parameter(torch.zeros(1, 1, d))             # [MASK] for token dropout
+        # SLATE's encoder MLP between the token embeddings and slot attention
+        self.sa_in = nn.Sequential(nn.LayerNorm(d), nn.Linear(d, d), nn.ReLU(), nn.Linear(d, d))
+        self.slot_attn = SlotAttention(d, sc.slot_dim, sc.num_slots, sc.iterations, sc.heads,
+                                       sc.mlp_hidden)
+        dc = cfg.decoder
+        self.decoder = TransformerDecoder(V, N, sc.slot_dim, d, dc.layers, dc.heads, dc.dropout)
+        dy = cfg.dynamics
+        self.dynamics = Dynamics(sc.type_dim, sc.state_dim, cfg.action_dim, dy.hidden, dy.layers,
+                                 dy.heads, dy.dropout)
+
+    # ------------------------------------------------------------------ input checks
+    def _check_images(self, images, ndim: int, what: str) -> torch.Tensor:
+        S = self.cfg.image_size
+        if isinstance(images, np.ndarray):
+            images = torch.from_numpy(images)
+        if not isinstance(images, torch.Tensor):
+            raise ValueError(f"{what} must be a uint8 tensor or array, got {type(images).__name__}")
+        want = "(B, H, W, 3)" if ndim == 4 else "(B, T, H, W, 3)"
+        if images.dtype != torch.uint8:
+            raise ValueError(f"{what} must have dtype uint8 (pixel values 0..255), got {images.dtype}")
+        if images.ndim != ndim or tuple(images.shape[-3:]) != (S, S, 3):
+            raise ValueError(f"{what} must have shape {want} with H = W = {S}, "
+                             f"got {tuple(images.shape)}")
+        return images.to(self.pos_emb.device)
+
+    @property
+    def device(self) -> torch.device:
+        return self.pos_emb.device
+
+    # ------------------------------------------------------------------ pieces
+    def _embed(self, ids: torch.Tensor) -> torch.Tensor:
+        """token ids (B, N) -> embeddings with positions (B, N, d)."""
+        return self.token_emb(ids) + self.pos_emb
+
+    def _drop_tokens(self, ids: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
+        """Decoder inputs with token dropout (training only): each input token is replaced by
+        a learned [MASK] embedding (its position kept) with probability decoder.token_dropout.
+        Like word dropout in text VAEs (Bowman et al., 2016), it stops the autoregressive
+        decoder from predicting a scene from its own context and ignoring the slots."""
+        p = self.cfg.decoder.token_dropout
+        if not self.training or p <= 0:
+            return emb
+        drop = torch.rand(ids.shape, device=ids.device) < p                    # (B*T, N)
+        masked = (self.mask_emb + self.pos_emb).to(emb.dtype).expand_as(emb)
+        return torch.where(drop[..., None], masked, emb)
+
+    def _tokens_to_slots(self, emb, T, init_slots=None, iterations=None, num_slots=None,
+                         generator=None):
+        """emb (B*T, N, d) -> slots (B, T, K, D), attention (B, T, K, N); frame t+1 starts
+        from frame t's slots."""
+        BT, N, d = emb.shape
+        B = BT // T
+        inp = self.sa_in(emb).reshape(B, T, N, d)
+        slots, attns, prev = [], [], init_slots
+        for t in range(T):
+            prev, attn = self.slot_attn(inp[:, t], init_slots=prev, iterations=iterations,
+                                        num_slots=num_slots, generator=generator)
+            slots.append(prev)
+            attns.append(attn)
+        return torch.stack(slots, 1), torch.stack(attns, 1)
+
+    # ------------------------------------------------------------------ training
+    def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
+                dvae_only: bool = False) -> dict:
+        """videos (B, T, H, W, 3) uint8, actions (B, T-1, A) -> dict of scalar losses.
+
+        dvae_only: compute the dVAE reconstruction alone (ce = ce_dyn = 0), for a warm-up
+        phase that gives the transformer stable tokens (see TrainConfig.dvae_warmup_steps)."""
+        videos = self._check_images(videos, 5, "videos")
+        B, T = videos.shape[:2]
+        if actions.shape != (B, T - 1, self.cfg.action_dim):
+            raise ValueError(f"actions must have shape {(B, T - 1, self.cfg.action_dim)}, "
+                             f"got {tuple(actions.shape)}")
+        x = videos.flatten(0, 1).float() / 255.0                       # (B*T, H, W, 3)
+        log_probs = self.dvae.encode(x)                                # (B*T, N, V)
+        soft, ids = self.dvae.sample(log_probs, tau)                   # (B*T, N, V), (B*T, N)
+        recon = self.dvae.decode(soft.to(log_probs.dtype))             # (B*T, H, W, 3)
+        mse = (recon.float() - x).pow(2).sum(dim=(1, 2, 3)).mean()
+        if dvae_only:
+            zero = mse.new_zeros(())
+            return {"loss": mse, "mse": mse, "ce": zero, "ce_dyn": zero}
+
+        emb = self._embed(ids)                                         # (B*T, N, d)
+        slots, _ = self._tokens_to_slots(emb, T)                       # (B, T, K, D)
+        dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
+        logits = self.decoder(dec_in, slots.flatten(0, 1))             # (B*T, N, V)
+        ce = F.cross_entropy(logits.flatten(0, 1).float(), ids.flatten(), reduction="sum") / (B * T)
+
+        pred = self.dynamics(slots[:, :-1], actions.to(videos.device))  # (B, T-1, K, D)
+        emb_next = dec_in.reshape(B, T, *emb.shape[1:])[:, 1:].flatten(0, 1)
+        logits_dyn = self.decoder(emb_next, pred.flatten(0, 1))        # (B*(T-1), N, V)
+        ce_dyn = F.cross_entropy(logits_dyn.flatten(0, 1).float(), ids.reshape(B, T, -1)[:, 1:].flatten(),
+                                 reduction="sum") / (B * (T - 1))
+        return {"loss": mse + ce + ce_dyn, "mse": mse, "ce": ce, "ce_dyn": ce_dyn}
+
+    # ------------------------------------------------------------------ inference API
+    @torch.no_grad()
+    def tokens(self, images) -> torch.Tensor:
+        """images (B, H, W, 3) uint8 -> deterministic dVAE token ids (B, N)."""
+        images = self._check_images(images, 4, "images")
+        return self.dvae.tokenize(images.float() / 255.0)
+
+    @torch.no_grad()
+    def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
+              init_slots: torch.Tensor | None = None, seed: int = 0) -> SlotInference:
+        """Slots and masks of single images.
+
+        images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations (7);
+        num_slots overrides K (e.g. 8 slots for 7 objects: slot attention works for any K);
+        init_slots (B, K, D) continues from a previous frame; `seed` fixes the initial
+        slot sample so inference is reproducible.
+        """
+        was_training = self.training
+        self.eval()
+        try:
+            ids = self.tokens(images)                                  # (B, N)
+            B = ids.shape[0]
+            gen = torch.Generator(device=self.device).manual_seed(int(seed))
+            if init_slots is not None and tuple(init_slots.shape[::2]) != (B, self.slot_dim):
+                raise ValueError(f"init_slots must have shape (B={B}, K, D={self.slot_dim}), "
+                                 f"got {tuple(init_slots.shape)}")
+            slots, attn = self._tokens_to_slots(
+                self._embed(ids), 1, init_slots=init_slots,
+                iterations=iterations or self.cfg.slots.eval_iterations,
+                num_slots=num_slots, generator=gen)
+            slots, attn = slots[:, 0].float(), attn[:, 0].float()      # (B, K, D), (B, K, N)
+            masks = self.upsample_masks(attn)
+            return SlotInference(slots, slots[..., :self.type_dim], slots[..., self.type_dim:],
+                                 masks, attn)
+        finally:
+            self.train(was_training)
+
+    @torch.no_grad()
+    def infer_video(self, videos, iterations: int | None = None, num_slots: int | None = None,
+                    seed: int = 0) -> SlotInference:
+        """Like `infer` for videos (B, T, H, W, 3): each frame starts from the previous frame's
+        slots, so slot k tracks one object. Outputs gain a T axis: slots (B, T, K, D), ..."""
+        videos = self._check_images(videos, 5, "videos")
+        B, T = videos.shape[:2]
+        out, prev = [], None
+        for t in range(T):
+            r = self.infer(videos[:, t], iterations, num_slots, init_slots=prev, seed=seed)
+            out.append(r)
+            prev = r.slots
+        return SlotInference(*(torch.stack(x, 1) for x in zip(*out)))
+
+    def upsample_masks(self, attn: torch.Tensor) -> torch.Tensor:
+        """attention (B, K, N) -> masks (B, K, H, W). Bilinear weights sum to one, so the
+        masks still sum to one over K at every pixel."""
+        B, K, _ = attn.shape
+        g, S = self.cfg.grid, self.cfg.image_size
+        return F.interpolate(attn.reshape(B, K, g, g), size=(S, S), mode="bilinear",
+                             align_corners=False)
+
+    @torch.no_grad()
+    def predict(self, slots: torch.Tensor, actions) -> torch.Tensor:
+        """Dynamics: slots (B, K, D), actions (B, A) -> next slots (B, K, D); the type part
+        slots[..., :Dz] is returned unchanged."""
+        if slots.ndim != 3 or slots.shape[-1] != self.slot_dim:
+            raise ValueError(f"slots must have shape (B, K, {self.slot_dim}), got {tuple(slots.shape)}")
+        actions = torch.as_tensor(actions, dtype=torch.float32, device=slots.device)
+        if actions.shape != (slots.shape[0], self.cfg.action_dim):
+            raise ValueError(f"actions must have shape ({slots.shape[0]}, {self.cfg.action_dim}), "
+                             f"got {tuple(actions.shape)}")
+        was_training = self.training
+        self.eval()
+        try:
+            return self.dynamics(slots.to(self.pos_emb.dtype), actions)
+        finally:
+            self.train(was_training)
+
+    @torch.no_grad()
+    def decode_tokens(self, slots: torch.Tensor, temperature: float = 0.0,
+                      seed: int = 0) -> torch.Tensor:
+        """Autoregressively generate token ids (B, N) from slots (B, K, D); greedy when
+        temperature == 0, else sampled. N sequential decoder passes: for notebooks."""
+        was_training = self.training
+        self.eval()
+        try:
+            B, N = slots.shape[0], self.cfg.num_tokens
+            gen = torch.Generator(device=self.device).manual_seed(int(seed))
+            ids = torch.zeros(B, N, dtype=torch.long, device=self.device)
+            for n in range(N):
+                logits = self.decoder(self._embed(ids)[:, :n + 1], slots)[:, n]   # (B, V)
+                if temperature > 0:
+                    probs = torch.softmax(logits.float() / temperature, -1)
+                    ids[:, n] = torch.multinomial(probs, 1, generator=gen)[:, 0]
+                else:
+                    ids[:, n] = logits.argmax(-1)
+            return ids
+        finally:
+            self.train(was_training)
+
+    @torch.no_grad()
+    def decode(self, slots: torch.Tensor, temperature: float = 0.0, seed: int = 0) -> torch.Tensor:
+        """slots (B, K, D) -> images (B, H, W, 3) float in [0, 1] via tokens and the dVAE."""
+        if slots.ndim != 3 or slots.shape[-1] != self.slot_dim:
+            raise ValueError(f"slots must have shape (B, K, {self.slot_dim}), got {tuple(slots.shape)}")
+        ids = self.decode_tokens(slots.to(self.pos_emb.dtype), temperature, seed)
+        return self.dvae.decode_ids(ids).clamp(0, 1)
+
+    @torch.no_grad()
+    def reconstruct(self, images) -> torch.Tensor:
+        """dVAE round trip: images (B, H, W, 3) uint8 -> (B, H, W, 3) float in [0, 1]."""
+        return self.dvae.decode_ids(self.tokens(images)).clamp(0, 1)

@@ -1,0 +1,74 @@
+"""Slot attention (Locatello et al., 2020) with a learned Gaussian initialisation.
+
+K slots compete for N input features: the softmax is over *slots*, so each input is
+shared out among them, and each slot takes the attention-weighted mean of the values.
+A GRU folds that update into the slot, then a residual MLP refines it. The returned
+attention (B, K, N) sums to one over K at every input: it is the segmentation mask.
+
+Initial slots are drawn as mu + exp(log_sigma) * eps with eps ~ N(0, I) (the
+reparameterisation trick), so both mu and log_sigma receive gradients. For video, pass
+`init_slots` (the previous frame's slots) to continue tracking instead of resampling.
+Nothing in the update depends on the slot index, so permuting the initial slots permutes
+the outputs in the same way (slot-permutation equivariance), and any K works at inference.
+
+Shapes: inputs (B, N, Din); slots (B, K, D); attention (B, K, N).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["SlotAttention"]
+
+
+class SlotAttention(nn.Module):
+    def __init__(self, input_dim: int, slot_dim: int, num_slots: int, iterations: int = 3,
+                 heads: int = 1, mlp_hidden: int | None = None, eps: float = 1e-8):
+        super().__init__()
+        if slot_dim % heads:
+            raise ValueError(f"slot_dim {slot_dim} must be divisible by heads {heads}")
+        self.slot_dim, self.num_slots, self.iterations, self.heads, self.eps = (
+            slot_dim, num_slots, iterations, heads, eps)
+        self.mu = nn.Parameter(torch.randn(1, 1, slot_dim) * slot_dim ** -0.5)
+        self.log_sigma = nn.Parameter(torch.full((1, 1, slot_dim), -1.0))
+        self.norm_inputs = nn.LayerNorm(input_dim)
+        self.to_kv = nn.Linear(input_dim, 2 * slot_dim, bias=False)   # one big matmul for k and v
+        self.norm_slots = nn.LayerNorm(slot_dim)
+        self.to_q = nn.Linear(slot_dim, slot_dim, bias=False)
+        self.gru = nn.GRUCell(slot_dim, slot_dim)
+        mlp_hidden = mlp_hidden or slot_dim
+        self.mlp = nn.Sequential(nn.LayerNorm(slot_dim), nn.Linear(slot_dim, mlp_hidden), nn.ReLU(),
+                                 nn.Linear(mlp_hidden, slot_dim))
+
+    def initial_slots(self, batch: int, num_slots: int | None = None,
+                      generator: torch.Generator | None = None) -> torch.Tensor:
+        """Sample (B, K, D) slots from the learned Gaussian N(mu, exp(log_sigma)^2)."""
+        k = num_slots or self.num_slots
+        eps = torch.randn(batch, k, self.slot_dim, generator=generator, device=self.mu.device,
+                          dtype=self.mu.dtype)
+        return self.mu + self.log_sigma.exp() * eps
+
+    def forward(self, inputs: torch.Tensor, init_slots: torch.Tensor | None = None,
+                iterations: int | None = None, num_slots: int | None = None,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """inputs (B, N, Din) -> (slots (B, K, D), attention (B, K, N) summing to 1 over K)."""
+        B, N, _ = inputs.shape
+        H, Dh = self.heads, self.slot_dim // self.heads
+        slots = init_slots if init_slots is not None else self.initial_slots(B, num_slots, generator)
+        K = slots.shape[1]
+        k, v = self.to_kv(self.norm_inputs(inputs)).chunk(2, dim=-1)
+        k = k.reshape(B, N, H, Dh).transpose(1, 2) * Dh ** -0.5     # (B, H, N, Dh)
+        v = v.reshape(B, N, H, Dh).transpose(1, 2)                  # (B, H, N, Dh)
+        attn = None
+        for _ in range(iterations or self.iterations):
+            prev = slots
+            q = self.to_q(self.norm_slots(slots)).reshape(B, K, H, Dh).transpose(1, 2)  # (B, H, K, Dh)
+            logits = q @ k.transpose(-1, -2)                        # (B, H, K, N)
+            attn = torch.softmax(logits.float(), dim=2)             # over slots
+            w = attn / (attn.sum(dim=-1, keepdim=True) + self.eps)  # weighted mean over inputs
+            updates = (w.to(v.dtype) @ v).transpose(1, 2).reshape(B, K, self.slot_dim)
+            slots = self.gru(updates.reshape(B * K, -1).to(prev.dtype),
+                             prev.reshape(B * K, -1)).reshape(B, K, -1)
+            slots = slots + self.mlp(slots)
+        return slots, attn.mean(dim=1)                              # (B, K, D), (B, K, N)

@@ -1,0 +1,338 @@
+"""Training dSLATE on an experience buffer: `python -m ncs_lite train ...`.
+
+    python -m ncs_lite train --env block-rearrange --preset reduced \
+        --data .cache/buffers/block-rearrange-4 --out dslate.pt [--resume] [--steps N]
+
+What the loop guarantees:
+* Determinism and exact resume. The batch of step i is fixed by (seed, i) alone: the
+  windows are read in a stream of seeded permutations of the dataset. A checkpoint holds
+  the model, the Adam state, the step, torch's RNG state (gumbel noise, slot samples,
+  dropout) and the config, so `--resume` continues bit-for-bit like an uninterrupted run.
+* Schedules are functions of the step: gumbel tau (cosine, `tau_schedule`), the lr of
+  slot attention / decoder / dynamics (linear warm-up, then constant or cosine), and the
+  dVAE's constant lr (no warm-up), as in Table 2.
+* Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
+  *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
+* Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
+* Safety: checkpoints are written atomically every `checkpoint_every` steps; a
+  non-finite loss or gradient stops the run with FloatingPointError and leaves the last
+  good checkpoint untouched. A loss CSV (`<out>.csv`) is written beside the checkpoint.
+* Checkpoints contain only tensors, dicts, lists and primitives, so they load with
+  `torch.load(path, weights_only=True)`; a checkpoint from other code or another config
+  is refused with a ValueError naming the difference.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .config import DSlateConfig, config_diff, get_preset, to_dict
+from .models.dslate import MODEL_VERSION, DSlate
+from .models.dvae import cosine_anneal, tau_schedule
+from .utils import atomic_torch_save, git_commit, package_versions, progress, seed_everything
+
+__all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
+           "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast"]
+
+CHECKPOINT_FORMAT = 1
+CSV_FIELDS = ["step", "loss", "mse", "ce", "ce_dyn", "tau", "lr", "grad_norm", "seconds"]
+
+
+# ---------------------------------------------------------------------- devices and precision
+def resolve_device(device=None) -> torch.device:
+    """The given device, else CUDA when available, else CPU."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def cpu_has_fast_bf16() -> bool:
+    """True on CPUs with AMX or AVX512-BF16 (oneDNN runs bf16 matmuls natively there)."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "amx_bf16" in flags or "avx512_bf16" in flags
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """'auto' -> 'bf16' on bf16-capable GPUs and AMX/AVX512-BF16 CPUs, else 'fp32'."""
+    if precision in ("bf16", "fp32"):
+        return precision
+    if precision != "auto":
+        raise ValueError(f"precision must be 'auto', 'bf16' or 'fp32', got {precision!r}")
+    if device.type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    return "bf16" if cpu_has_fast_bf16() else "fp32"
+
+
+def autocast(device: torch.device, precision: str):
+    """bf16 autocast context (a no-op context for fp32)."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
+
+
+# ---------------------------------------------------------------------- schedules and data order
+def lr_at(step: int, cfg: DSlateConfig) -> float:
+    """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
+    then constant ('none') or a cosine decay to 10% of the peak at the last step ('cosine')."""
+    t = cfg.train
+    step = step - t.dvae_warmup_steps          # this schedule starts after the dVAE warm-up
+    if step < 0:
+        return 0.0
+    warm = min(1.0, (step + 1) / t.warmup_steps) if t.warmup_steps > 0 else 1.0
+    if t.lr_decay == "cosine" and step >= t.warmup_steps:
+        total = t.total_steps() - t.dvae_warmup_steps
+        return cosine_anneal(step - t.warmup_steps, t.lr, 0.1 * t.lr, max(1, total - t.warmup_steps))
+    return t.lr * warm
+
+
+class BatchOrder:
+    """Indices of the windows used at each step: a stream of permutations of the dataset,
+    permutation j drawn from `default_rng([seed, j])`. Step i reads stream[i*B:(i+1)*B]."""
+
+    def __init__(self, n: int, batch: int, seed: int):
+        self.n, self.batch, self.seed, self._cache = n, batch, seed, {}
+
+    def _perm(self, j: int) -> np.ndarray:
+        if j not in self._cache:
+            self._cache = {j: np.random.default_rng([self.seed, j]).permutation(self.n)}
+        return self._cache[j]
+
+    def __call__(self, step: int) -> np.ndarray:
+        start = step * self.batch
+        out = []
+        while len(out) < self.batch:
+            j, r = divmod(start + len(out), self.n)
+            out.extend(self._perm(j)[r:r + self.batch - len(out)].tolist())
+        return np.asarray(out)
+
+
+def build_optimizer(model: DSlate, cfg: DSlateConfig) -> torch.optim.Adam:
+    """Adam with two groups: the dVAE (constant lr) and everything else (warm-up lr)."""
+    dvae = list(model.dvae.parameters())
+    ids = {id(p) for p in dvae}
+    rest = [p for p in model.parameters() if id(p) not in ids]
+    groups = [{"params": dvae, "lr": cfg.dvae.lr, "name": "dvae"},
+              {"params": rest, "lr": lr_at(0, cfg), "name": "slate"}]
+    return torch.optim.Adam(groups)
+
+
+# ---------------------------------------------------------------------- checkpoints
+def read_checkpoint(path: str | Path, map_location="cpu") -> dict:
+    """Load and check a dSLATE checkpoint (weights_only=True). ValueError when it is not one
+    or was written by an incompatible version of the code."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # noqa: BLE001 - unpickling errors come in many types
+        raise ValueError(f"{path} is not a loadable dSLATE checkpoint: {e}") from e
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
+        raise ValueError(f"{path} is not a dSLATE checkpoint (expected a dict with 'model' "
+                         f"and 'config', got keys {sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt)})")
+    if ckpt.get("format") != CHECKPOINT_FORMAT or ckpt.get("model_version") != MODEL_VERSION:
+        raise ValueError(f"{path} was written by another version of the code: checkpoint format "
+                         f"{ckpt.get('format')!r} / model {ckpt.get('model_version')!r}, this code "
+                         f"expects format {CHECKPOINT_FORMAT} / model {MODEL_VERSION!r}; retrain it")
+    return ckpt
+
+
+def _rng_state(device: torch.device) -> dict:
+    state = {"torch": torch.get_rng_state()}
+    if device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state(device)
+    return state
+
+
+def _set_rng_state(state: dict, device: torch.device) -> None:
+    torch.set_rng_state(state["torch"].cpu())
+    if device.type == "cuda" and "cuda" in state:
+        torch.cuda.set_rng_state(state["cuda"].cpu(), device)
+
+
+def code_version() -> dict:
+    """The kit's commit and package versions, stored in every checkpoint."""
+    return {"commit": git_commit(), **package_versions()}
+
+
+def _save(path, model, opt, cfg, step, device, precision, env, data_meta, seconds, last,
+          version) -> None:
+    atomic_torch_save({
+        "format": CHECKPOINT_FORMAT,
+        "model_version": MODEL_VERSION,
+        "code_version": version,
+        "config": to_dict(cfg),
+        "env": env,
+        "data": data_meta,
+        "step": step,
+        "precision": precision,
+        "seconds": seconds,
+        "last": last,
+        "model": model.state_dict(),
+        "optimizer": opt.state_dict(),
+        "rng": _rng_state(device),
+    }, path)
+
+
+# ---------------------------------------------------------------------- the loop
+def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume: bool = False,
+          device=None, max_steps: int | None = None, env: str = "block-rearrange",
+          precision: str | None = None) -> Path:
+    """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
+
+    Runs until `cfg.train.total_steps()` (epochs x episodes per epoch / batch) or, if
+    given, until global step `max_steps` (schedules still follow the full run, so a run
+    stopped with `max_steps` and resumed matches an uninterrupted one). Returns `out_path`.
+    `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
+    """
+    from .data import EpisodeDataset, load_manifest
+
+    cfg.validate()
+    out_path = Path(out_path)
+    device = resolve_device(device)
+    precision = resolve_precision(precision or cfg.train.precision, device)
+    total = cfg.train.total_steps()
+    stop = total if max_steps is None else int(max_steps)
+    if stop < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+
+    manifest = load_manifest(data_dir)
+    data_meta = {"dir": str(data_dir), "episodes": int(manifest["episodes"]),
+                 "seed": int(manifest["seed"])}
+    dataset = EpisodeDataset(data_dir, window=cfg.train.window)
+    order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
+
+    seed_everything(cfg.train.seed)
+    model = DSlate(cfg).to(device)
+    opt = build_optimizer(model, cfg)
+    step, seconds = 0, 0.0
+    csv_path = out_path.with_suffix(".csv")
+
+    if resume:
+        if not out_path.exists():
+            raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
+        ckpt = read_checkpoint(out_path, map_location=device)
+        diff = config_diff(ckpt["config"], to_dict(cfg))
+        if diff:
+            raise ValueError(f"checkpoint {out_path} was trained with another config "
+                             f"(checkpoint vs requested): {'; '.join(diff)}")
+        try:
+            model.load_state_dict(ckpt["model"])
+        except RuntimeError as e:
+            raise ValueError(f"checkpoint {out_path} does not match this code's model: {e}") from e
+        opt.load_state_dict(ckpt["optimizer"])
+        _set_rng_state(ckpt["rng"], device)
+        step, seconds = int(ckpt["step"]), float(ckpt["seconds"])
+        _truncate_csv(csv_path, step)
+    else:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(csv_path, "w", newline="") as f:
+            csv.writer(f).writerow(CSV_FIELDS)
+
+    version = code_version()
+    model.train()
+    params = list(model.parameters())
+    last_saved = step if resume else None
+    bar = progress(total=stop, initial=min(step, stop), desc=f"train dSLATE ({cfg.name}, {precision})",
+                   unit="step")
+    csv_file = open(csv_path, "a", newline="")
+    writer = csv.writer(csv_file)
+    try:
+        while step < stop:
+            t0 = time.perf_counter()
+            idx = order(step)
+            items = [dataset[int(i)] for i in idx]
+            frames = torch.stack([it["frames"] for it in items]).to(device, non_blocking=True)
+            actions = torch.stack([it["actions"] for it in items]).to(device, non_blocking=True)
+            tau, lr = tau_schedule(step, cfg.dvae), lr_at(step, cfg)
+            for g in opt.param_groups:
+                g["lr"] = cfg.dvae.lr if g.get("name") == "dvae" else lr
+
+            with autocast(device, precision):
+                out = model(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps)
+            loss = out["loss"]
+            if not torch.isfinite(loss):
+                _non_finite("loss", loss, step, out_path, last_saved)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.train.grad_clip,
+                                                       norm_type=float(cfg.train.grad_clip_norm))
+            if not torch.isfinite(grad_norm):
+                _non_finite("gradient norm", grad_norm, step, out_path, last_saved)
+            opt.step()
+            step += 1
+            seconds += time.perf_counter() - t0
+
+            vals = {k: float(v.detach()) for k, v in out.items()}
+            writer.writerow([step, *(f"{vals[k]:.4f}" for k in ("loss", "mse", "ce", "ce_dyn")),
+                             f"{tau:.4f}", f"{lr:.3e}", f"{float(grad_norm):.4g}", f"{seconds:.1f}"])
+            bar.update(1)
+            if step % 10 == 0 or step == stop:
+                csv_file.flush()
+                bar.set_postfix(loss=f"{vals['loss']:.1f}", mse=f"{vals['mse']:.1f}",
+                                ce=f"{vals['ce']:.1f}", tau=f"{tau:.2f}")
+            if step % cfg.train.checkpoint_every == 0 or step == stop:
+                csv_file.flush()
+                _save(out_path, model, opt, cfg, step, device, precision, env, data_meta, seconds,
+                      {k: round(v, 4) for k, v in vals.items()}, version)
+                last_saved = step
+    finally:
+        csv_file.close()
+        bar.close()
+    return out_path
+
+
+def _non_finite(what, value, step, out_path, last_saved):
+    kept = (f"the last good checkpoint {out_path} (step {last_saved}) was kept"
+            if last_saved is not None else "no checkpoint had been written yet")
+    raise FloatingPointError(f"non-finite {what} ({float(value.detach())}) at step {step + 1}; training "
+                             f"stopped and {kept}. Lower the learning rate or use precision fp32.")
+
+
+def _truncate_csv(csv_path: Path, step: int) -> None:
+    """Drop rows after `step` (written after the checkpoint an interrupted run resumes from)."""
+    if not csv_path.exists():
+        with open(csv_path, "w", newline="") as f:
+            csv.writer(f).writerow(CSV_FIELDS)
+        return
+    with open(csv_path, newline="") as f:
+        rows = list(csv.reader(f))
+    keep = [CSV_FIELDS] + [r for r in rows[1:] if r and int(r[0]) <= step]
+    with open(csv_path, "w", newline="") as f:
+        csv.writer(f).writerows(keep)
+
+
+# ---------------------------------------------------------------------- CLI
+def add_subcommand(subparsers) -> None:
+    """Register `train` on the CLI's subparsers (ncs_lite/__main__.py)."""
+    p = subparsers.add_parser("train", help="train dSLATE on an experience buffer",
+                              description="Train dSLATE (dVAE + slot attention + SLATE decoder + "
+                                          "dynamics) on a buffer made by `collect`.")
+    p.add_argument("--env", default="block-rearrange", help="environment the buffer comes from")
+    p.add_argument("--preset", default="reduced", help="config preset: ci, reduced or paper")
+    p.add_argument("--data", required=True, help="buffer directory (from `collect`)")
+    p.add_argument("--out", required=True, help="checkpoint path (.pt); the loss CSV goes beside it")
+    p.add_argument("--resume", action="store_true", help="continue from --out")
+    p.add_argument("--steps", type=int, default=None,
+                   help="stop at this global step (default: the preset's full schedule)")
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
+    p.add_argument("--precision", default=None, choices=["auto", "bf16", "fp32"],
+                   help="override the preset's precision")
+    p.set_defaults(func=_main)
+
+
+def _main(args) -> None:
+    cfg = get_preset(args.preset)
+    t0 = time.perf_counter()
+    path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
+                 max_steps=args.steps, env=args.env, precision=args.precision)
+    ckpt = read_checkpoint(path)
+    print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
+          f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "
+          f"this run); losses in {Path(path).with_suffix('.csv')}")

@@ -1,0 +1,141 @@
+"""Training loop: checkpoints, exact resume, NaN detection, mismatch errors (ci preset)."""
+import csv
+
+import pytest
+import torch
+
+from ncs_lite.config import get_preset, to_dict
+from ncs_lite.inference import load_dslate
+from ncs_lite.training import BatchOrder, add_subcommand, lr_at, train
+
+
+@pytest.fixture(scope="module")
+def buffer(tmp_path_factory):
+    from ncs_lite.data import collect
+
+    return collect(tmp_path_factory.mktemp("buf"), episodes=4, num_objects=4, seed=3, shard_size=4)
+
+
+def ci(**train):
+    cfg = get_preset("ci")
+    for k, v in train.items():
+        setattr(cfg.train, k, v)
+    return cfg
+
+
+def rows(path):
+    with open(path.with_suffix(".csv")) as f:
+        return list(csv.reader(f))
+
+
+def test_checkpoint_round_trip(buffer, tmp_path):
+    out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
+    ckpt = torch.load(out, weights_only=True)                 # only tensors, dicts, primitives
+    assert ckpt["step"] == 2 and ckpt["config"] == to_dict(get_preset("ci"))
+    model = load_dslate(out)
+    assert not model.training
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, ckpt["model"][k]), k
+    assert [r[0] for r in rows(out)] == ["step", "1", "2"]
+    r = model.infer(torch.zeros(1, 64, 64, 3, dtype=torch.uint8))
+    assert torch.allclose(r.masks.sum(1), torch.ones(1, 64, 64), atol=1e-5)
+
+
+def test_resume_equals_uninterrupted_run(buffer, tmp_path):
+    cfg = ci(epochs=2)                                        # 8 steps, checkpoint every 2
+    full = train(cfg, buffer, tmp_path / "full.pt", max_steps=6)
+    part = train(cfg, buffer, tmp_path / "part.pt", max_steps=3)
+    # pretend the run died after step 3: rows past the checkpoint must be dropped on resume
+    with open(part.with_suffix(".csv"), "a") as f:
+        f.write("4,1,1,1,1,1,1,1,1\n")
+    part = train(cfg, buffer, part, resume=True, max_steps=6)
+    a, b = torch.load(full, weights_only=True), torch.load(part, weights_only=True)
+    assert a["step"] == b["step"] == 6
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert torch.equal(a["rng"]["torch"], b["rng"]["torch"])
+    ra, rb = rows(full), rows(part)
+    assert [r[:8] for r in ra] == [r[:8] for r in rb]         # same losses (not wall time)
+    assert len(ra) == 7
+    # and the model did change over those steps
+    first = train(cfg, buffer, tmp_path / "one.pt", max_steps=1)
+    w = "slot_attn.mu"
+    assert not torch.equal(torch.load(first, weights_only=True)["model"][w], a["model"][w])
+
+
+def test_nan_stops_and_keeps_last_good_checkpoint(buffer, tmp_path):
+    out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
+    ckpt = torch.load(out, weights_only=True)
+    ckpt["model"]["decoder.head.weight"].fill_(float("nan"))
+    torch.save(ckpt, out)
+    before = out.read_bytes()
+    with pytest.raises(FloatingPointError, match=r"non-finite loss \(nan\) at step 3.*step 2\) was kept"):
+        train(ci(), buffer, out, resume=True, max_steps=4)
+    assert out.read_bytes() == before
+
+
+def test_mismatched_checkpoint_errors(buffer, tmp_path):
+    out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
+    with pytest.raises(ValueError, match=r"another config.*train.lr: 0.001 != 0.002"):
+        train(ci(lr=2e-3), buffer, out, resume=True, max_steps=4)
+    ckpt = torch.load(out, weights_only=True)
+    ckpt["model_version"] = "dslate-0"
+    torch.save(ckpt, tmp_path / "old.pt")
+    with pytest.raises(ValueError, match="another version of the code.*dslate-0"):
+        load_dslate(tmp_path / "old.pt")
+    ckpt = torch.load(out, weights_only=True)
+    ckpt["model"]["slot_attn.mu"] = torch.zeros(1, 1, 3)
+    torch.save(ckpt, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="does not match this code's dSLATE"):
+        load_dslate(tmp_path / "bad.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a loadable dSLATE checkpoint"):
+        load_dslate(tmp_path / "junk.pt")
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        train(ci(), buffer, tmp_path / "absent.pt", resume=True)
+
+
+def test_schedules_and_batch_order():
+    cfg = get_preset("paper")
+    assert lr_at(0, cfg) == pytest.approx(2e-4 / 30_000)
+    assert lr_at(14_999, cfg) == pytest.approx(1e-4)
+    assert lr_at(29_999, cfg) == lr_at(100_000, cfg) == pytest.approx(2e-4)
+    red = get_preset("reduced")
+    assert lr_at(red.train.total_steps(), red) == pytest.approx(0.1 * red.train.lr)
+    order = BatchOrder(10, 4, seed=0)
+    stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
+    assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
+    assert stream[:10] != stream[10:]
+
+
+def test_cli_subcommand():
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_subcommand(parser.add_subparsers(dest="cmd"))
+    args = parser.parse_args(["train", "--env", "block-rearrange", "--preset", "reduced", "--data", "D",
+                              "--out", "C.pt", "--resume", "--steps", "7"])
+    assert (args.preset, args.data, args.out, args.resume, args.steps) == ("reduced", "D", "C.pt", True, 7)
+    assert callable(args.func)
+
+
+def test_evaluate_segmentation_on_a_buffer(buffer, tmp_path):
+    from ncs_lite.metrics import evaluate_segmentation
+
+    model = load_dslate(train(ci(), buffer, tmp_path / "m.pt", max_steps=1))
+    res = evaluate_segmentation(model, buffer, num_slots=5, iterations=2, batch_size=7)
+    assert res["images"] == 4 * 5 and res["num_slots"] == 5 and res["iterations"] == 2
+    assert -1.0 <= res["fg_ari"] <= 1.0 and res["std"] >= 0.0
+
+
+def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
+    from ncs_lite.inference import obtain_dslate
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
+    model, path = obtain_dslate("ci", seed=1)
+    assert path.parent == tmp_path / "checkpoints" and model.cfg.train.seed == 1
+    stamp = path.stat().st_mtime_ns
+    again, path2 = obtain_dslate("ci", seed=1)                # finished: loaded, not retrained
+    assert path2 == path and path.stat().st_mtime_ns == stamp
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, again.state_dict()[k]), k
