@@ -181,8 +181,6 @@ def coverage_of_moves(graph: TransitionGraph, starts: torch.Tensor, goals: torch
     return float(np.mean([(s, d) in graph.edges for s, d in zip(src.tolist(), dst.tolist())]))
 
 
-__all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
-           "coverage_of_moves", "isolate", "pairwise_distances"]
 
 
 def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
@@ -191,3 +189,7 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
     states_t, states_t1, actions, true_entity = perception.transitions(buffer)
     return build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
                        true_entity=true_entity)
+
+
+__all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
+           "coverage_of_moves", "isolate", "pairwise_distances"]
