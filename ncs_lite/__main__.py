@@ -26,12 +26,13 @@ def _bench(args):
 
 def _graph(args):
     from .data import load_buffer
+    from .inference import load_dslate
     from .ncs.graph import graph_from_buffer
     from .ncs.perception import DSlatePerception, OraclePerception
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
-    perception = OraclePerception() if args.oracle else DSlatePerception(_load_model(args.checkpoint))
+    perception = OraclePerception() if args.oracle else DSlatePerception(load_dslate(args.checkpoint))
     graph = graph_from_buffer(load_buffer(args.data), perception, args.clusters, seed=args.seed)
     graph.info.update(data=str(args.data), checkpoint=args.checkpoint, oracle=args.oracle)
     graph.save(args.out)
@@ -39,18 +40,13 @@ def _graph(args):
                       "coverage": graph.info.get("coverage")}))
 
 
-def _load_model(path):
-    from . import load_dslate
-
-    return load_dslate(path)
-
-
 def _evaluate(args):
     from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
+    from .inference import load_dslate
     from .ncs.graph import TransitionGraph
 
     graph = TransitionGraph.load(args.graph) if args.graph else None
-    model = _load_model(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
+    model = load_dslate(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
                     action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
@@ -103,13 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_evaluate)
 
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        module.add_subcommand(sub)
+        importlib.import_module(name).add_subcommand(sub)
     return parser
 
 

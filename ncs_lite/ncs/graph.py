@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ..utils import atomic_torch_save
-from .kmeans import assign, kmeans, pairwise_distances
+from .kmeans import assign, kmeans
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -175,14 +175,6 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     return graph
 
 
-def coverage_of_moves(graph: TransitionGraph, starts: torch.Tensor, goals: torch.Tensor) -> float:
-    """Fraction of (start state, goal state) pairs whose bound nodes are joined by an edge."""
-    src, dst = graph.bind(starts), graph.bind(goals)
-    return float(np.mean([(s, d) in graph.edges for s, d in zip(src.tolist(), dst.tolist())]))
-
-
-
-
 def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
                       state: str = "mask") -> TransitionGraph:
     """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it."""
@@ -192,4 +184,4 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
 
 
 __all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
-           "coverage_of_moves", "isolate", "pairwise_distances"]
+           "isolate"]
