@@ -14,7 +14,7 @@ import copy
 import math
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 
-__all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "TrainConfig",
+__all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "MixtureConfig", "TrainConfig",
            "DSlateConfig", "PRESETS", "get_preset", "from_dict", "to_dict", "table2_rows"]
 
 
@@ -39,6 +39,9 @@ class SlotConfig:
     type_dim: int = 96
     state_dim: int = 96
     mlp_hidden: int = 192       # residual MLP of the slot update (SLATE: = slot size)
+    encoder: str = "tokens"     # slot-attention input: "tokens" = dVAE token embeddings (SLATE,
+    #                             the paper) or "cnn" = a CNN over pixels (STEVE), see pixel_encoder.py
+    encoder_stride: int = 2     # "cnn" only: features and masks at image_size / stride
 
     @property
     def slot_dim(self) -> int:
@@ -54,6 +57,9 @@ class DecoderConfig:
     dropout: float = 0.1
     token_dropout: float = 0.0  # replace decoder *input* tokens by [MASK] with this probability
     #                             (word dropout; not in the paper): the decoder must read the slots
+    slot_grad: float = 1.0      # scale of the gradient that the decoder's and the dynamics' losses
+    #                             send into slot attention: 1 = the paper; 0 = slots learn only
+    #                             from the mixture decoder (the decoder and dynamics still learn)
 
 
 @dataclass
@@ -63,6 +69,14 @@ class DynamicsConfig:
     heads: int = 4
     hidden: int = 96
     dropout: float = 0.1        # Table 2's dropout, applied to both transformers
+
+
+@dataclass
+class MixtureConfig:
+    """Auxiliary mixture decoder (not in the paper; see models/mixture_decoder.py): each slot
+    paints a patch per token plus an alpha logit, softmax over slots mixes them."""
+    weight: float = 0.0         # loss weight; 0 = off (the paper)
+    hidden: int = 128           # MLP width
 
 
 @dataclass
@@ -97,6 +111,7 @@ class DSlateConfig:
     slots: SlotConfig = field(default_factory=SlotConfig)
     decoder: DecoderConfig = field(default_factory=DecoderConfig)
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    mixture: MixtureConfig = field(default_factory=MixtureConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
     @property
@@ -106,6 +121,11 @@ class DSlateConfig:
     @property
     def num_tokens(self) -> int:
         return self.grid ** 2
+
+    @property
+    def mask_grid(self) -> int:
+        """Side of the slot-attention input grid, i.e. of the attention masks."""
+        return self.image_size // self.slots.encoder_stride if self.slots.encoder == "cnn" else self.grid
 
     def validate(self) -> "DSlateConfig":
         if self.image_size % self.downsample:
@@ -118,6 +138,11 @@ class DSlateConfig:
             c = getattr(self, part)
             if c.hidden % c.heads:
                 raise ValueError(f"{part}.hidden {c.hidden} must be divisible by {part}.heads {c.heads}")
+        if self.slots.encoder not in ("tokens", "cnn"):
+            raise ValueError(f"slots.encoder must be 'tokens' or 'cnn', got {self.slots.encoder!r}")
+        if self.image_size % self.slots.encoder_stride:
+            raise ValueError(f"image_size ({self.image_size}) must be divisible by slots.encoder_stride "
+                             f"({self.slots.encoder_stride})")
         if self.train.precision not in ("auto", "bf16", "fp32"):
             raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
         if self.train.lr_decay not in ("none", "cosine"):
@@ -153,25 +178,30 @@ def _reduced() -> DSlateConfig:
     """
     return DSlateConfig(
         name="reduced",
-        dvae=DVAEConfig(vocab_size=16, hidden=64, tau_steps=600, lr=3e-3),
+        dvae=DVAEConfig(vocab_size=64, hidden=64, tau_steps=600, lr=3e-3),
         slots=SlotConfig(num_slots=5, iterations=3, eval_iterations=7, heads=1,
-                         type_dim=32, state_dim=32, mlp_hidden=128),
-        decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5),
+                         type_dim=32, state_dim=32, mlp_hidden=128, encoder="cnn", encoder_stride=2),
+        decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5,
+                              slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0),
-        train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
+        mixture=MixtureConfig(weight=1.0, hidden=128),
+        train=TrainConfig(epochs=10, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250),
     )
 
 
 def _ci() -> DSlateConfig:
+    """The `reduced` model's structure at toy widths: seconds per run, every code path."""
     return DSlateConfig(
         name="ci",
         dvae=DVAEConfig(vocab_size=16, hidden=16, tau_steps=20, lr=1e-3),
         slots=SlotConfig(num_slots=3, iterations=2, eval_iterations=3, heads=1,
-                         type_dim=8, state_dim=8, mlp_hidden=16),
-        decoder=DecoderConfig(layers=1, heads=2, hidden=16, dropout=0.1, token_dropout=0.25),
+                         type_dim=8, state_dim=8, mlp_hidden=16, encoder="cnn", encoder_stride=2),
+        decoder=DecoderConfig(layers=1, heads=2, hidden=16, dropout=0.1, token_dropout=0.25,
+                              slot_grad=0.0),
         dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1),
+        mixture=MixtureConfig(weight=1.0, hidden=16),
         train=TrainConfig(epochs=1, episodes_per_epoch=16, window=2, batch_size=4, lr=1e-3,
                           warmup_steps=2, dvae_warmup_steps=1, precision="fp32",
                           checkpoint_every=2),

@@ -40,7 +40,7 @@ __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr
            "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast"]
 
 CHECKPOINT_FORMAT = 1
-CSV_FIELDS = ["step", "loss", "mse", "ce", "ce_dyn", "tau", "lr", "grad_norm", "seconds"]
+CSV_FIELDS = ["step", "loss", "mse", "ce", "ce_dyn", "mix", "tau", "lr", "grad_norm", "seconds"]
 
 
 # ---------------------------------------------------------------------- devices and precision
@@ -270,7 +270,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             seconds += time.perf_counter() - t0
 
             vals = {k: float(v.detach()) for k, v in out.items()}
-            writer.writerow([step, *(f"{vals[k]:.4f}" for k in ("loss", "mse", "ce", "ce_dyn")),
+            writer.writerow([step, *(f"{vals[k]:.4f}" for k in ("loss", "mse", "ce", "ce_dyn", "mix")),
                              f"{tau:.4f}", f"{lr:.3e}", f"{float(grad_norm):.4g}", f"{seconds:.1f}"])
             bar.update(1)
             if step % 10 == 0 or step == stop:

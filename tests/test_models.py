@@ -10,6 +10,7 @@ from ncs_lite.config import (DSlateConfig, config_diff, from_dict, get_preset, t
 from ncs_lite.metrics import adjusted_rand_index, foreground_ari
 from ncs_lite.models import DSlate, Dynamics, SlotAttention, TransformerDecoder, tau_schedule
 from ncs_lite.models.dvae import DVAE, patchify, unpatchify
+from ncs_lite.models.mixture_decoder import MixtureDecoder
 
 
 def tiny_cfg(**train) -> DSlateConfig:
@@ -56,7 +57,7 @@ def test_config_round_trip_and_diff():
     cfg = get_preset("reduced")
     assert to_dict(from_dict(to_dict(cfg))) == to_dict(cfg)
     diff = config_diff(to_dict(cfg), to_dict(get_preset("paper")))
-    assert "dvae.vocab_size: 16 != 4096" in diff
+    assert "dvae.vocab_size: 64 != 4096" in diff and "slots.encoder: 'cnn' != 'tokens'" in diff
     bad = to_dict(cfg)
     bad["slots"]["colour"] = 3
     with pytest.raises(ValueError, match="unknown keys \\['colour'\\]"):
@@ -86,6 +87,11 @@ def test_dvae_shapes_and_patchify_inverse():
     assert torch.allclose(soft.sum(-1), torch.ones(3, 256))
     assert torch.equal(soft.argmax(-1), ids)              # the hard token is the soft sample's mode
     assert d.decode(soft).shape == (3, 64, 64, 3)
+    torch.manual_seed(1)
+    soft_logits, ids_logits = d.sample(d.logits(x), tau=0.5)     # unnormalised: same sample
+    torch.manual_seed(1)
+    soft_logp, ids_logp = d.sample(logp, tau=0.5)
+    assert torch.equal(ids_logits, ids_logp) and torch.allclose(soft_logits, soft_logp, atol=1e-5)
 
 
 # ---------------------------------------------------------------- slot attention
@@ -145,21 +151,29 @@ def test_dynamics_carries_type_exactly_and_is_equivariant():
 
 
 # ---------------------------------------------------------------- dSLATE
-@pytest.mark.parametrize("token_dropout", [0.0, 0.5])
-def test_dslate_forward_and_inference_api(token_dropout):
+@pytest.mark.parametrize("token_dropout, encoder, mixture, slot_grad", [
+    (0.0, "tokens", 0.0, 1.0),                              # the paper's model
+    (0.5, "tokens", 0.0, 1.0),
+    (0.5, "cnn", 0.5, 0.0),                                 # the `reduced` preset's choices
+])
+def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, slot_grad):
     torch.manual_seed(0)
     cfg = tiny_cfg()
-    cfg.decoder.token_dropout = token_dropout                # 0.0 = the paper's model
+    cfg.decoder.token_dropout, cfg.decoder.slot_grad = token_dropout, slot_grad
+    cfg.slots.encoder, cfg.mixture.weight = encoder, mixture
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
-    assert set(out) == {"loss", "mse", "ce", "ce_dyn"}
+    assert set(out) == {"loss", "mse", "ce", "ce_dyn", "mix"}
     assert all(x.ndim == 0 and torch.isfinite(x) for x in out.values())
-    assert torch.allclose(out["loss"], out["mse"] + out["ce"] + out["ce_dyn"])
+    assert (out["mix"] > 0) == (mixture > 0)
+    assert torch.allclose(out["loss"], out["mse"] + out["ce"] + out["ce_dyn"] + mixture * out["mix"])
     K, Dz, Ds = cfg.slots.num_slots, cfg.slots.type_dim, cfg.slots.state_dim
     r = m.infer(v[:, 0])
     assert r.slots.shape == (2, K, Dz + Ds) and r.types.shape == (2, K, Dz)
     assert r.states.shape == (2, K, Ds) and r.masks.shape == (2, K, 64, 64)
+    assert r.attention.shape == (2, K, cfg.mask_grid ** 2)
+    assert cfg.mask_grid == (32 if encoder == "cnn" else 16)
     assert torch.allclose(r.masks.sum(1), torch.ones(2, 64, 64), atol=1e-5)
     assert torch.equal(torch.cat([r.types, r.states], -1), r.slots)
     assert torch.equal(m.infer(v[:, 0]).slots, r.slots)       # seeded: reproducible
@@ -169,6 +183,41 @@ def test_dslate_forward_and_inference_api(token_dropout):
     assert torch.equal(nxt[..., :Dz], r.types)
     vid = m.infer_video(v)
     assert vid.slots.shape == (2, 3, K, Dz + Ds) and vid.masks.shape == (2, 3, K, 64, 64)
+
+
+def test_mixture_decoder_alpha_and_permutation():
+    torch.manual_seed(0)
+    mix = MixtureDecoder(slot_dim=6, grid=4, patch=2, hidden=8)
+    slots = torch.randn(2, 3, 6)
+    patches, alpha = mix(slots)
+    assert patches.shape == (2, 16, 12) and alpha.shape == (2, 3, 16)
+    assert torch.allclose(alpha.sum(1), torch.ones(2, 16))
+    perm = torch.tensor([2, 0, 1])
+    p2, a2 = mix(slots[:, perm])
+    assert torch.allclose(p2, patches, atol=1e-6) and torch.allclose(a2, alpha[:, perm])
+
+
+@pytest.mark.parametrize("slot_grad", [0.0, 0.5])
+def test_slot_grad_scales_what_decoder_losses_send_to_slots(slot_grad):
+    torch.manual_seed(0)
+    cfg = tiny_cfg()
+    cfg.decoder.slot_grad, cfg.mixture.weight = slot_grad, 0.0
+    m = DSlate(cfg)
+    v, a = videos(B=2, T=2)
+    torch.manual_seed(1)
+    out = m(v, a, tau=1.0)
+    (out["ce"] + out["ce_dyn"]).backward()
+    g = m.slot_attn.to_q.weight.grad
+    assert (g is None or float(g.abs().sum()) == 0.0) == (slot_grad == 0.0)
+    assert m.decoder.head.weight.grad.abs().sum() > 0             # the decoder still learns
+    if slot_grad:                                                 # the gradient is scaled, not cut
+        g_half = g.clone()
+        m.zero_grad()
+        cfg.decoder.slot_grad = 1.0
+        torch.manual_seed(1)
+        out = m(v, a, tau=1.0)
+        (out["ce"] + out["ce_dyn"]).backward()
+        assert torch.allclose(g_half, 0.5 * m.slot_attn.to_q.weight.grad, rtol=1e-4, atol=1e-7)
 
 
 def test_bad_inputs_give_clear_errors():

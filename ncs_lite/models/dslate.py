@@ -9,7 +9,11 @@ Training loss for a video of T frames (per-image sums, averaged over images):
     mse      dVAE reconstruction of every frame (sum over pixels)
     ce       SLATE token cross-entropy of every frame decoded from its slots (sum over tokens)
     ce_dyn   token cross-entropy of frame t+1 decoded from the *predicted* slots
-    loss     = mse + ce + ce_dyn
+    mix      auxiliary mixture-decoder reconstruction of every frame from its slots (sum
+             over pixels), weighted by cfg.mixture.weight: 0 in `paper`, see mixture_decoder.py
+    loss     = mse + ce + ce_dyn + weight * mix
+ce and ce_dyn reach slot attention with their gradient scaled by cfg.decoder.slot_grad
+(1 in `paper`; `reduced` lets the slots learn from the mixture decoder alone).
 As in SLATE, the transformer's targets are the dVAE's *sampled* hard tokens, detached,
 so the dVAE learns only from its reconstruction and the rest only from the tokens.
 
@@ -18,7 +22,6 @@ tokens (B, N) over a vocabulary of V; masks (B, K, H, W).
 """
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -27,31 +30,30 @@ import torch.nn.functional as F
 from torch import nn
 
 from .decoder import TransformerDecoder
-from .dvae import DVAE
+from .dvae import DVAE, patchify
 from .dynamics import Dynamics
+from .mixture_decoder import MixtureDecoder
+from .pixel_encoder import PixelEncoder
+from .positional import sinusoid_2d
 from .slot_attention import SlotAttention
 
 __all__ = ["DSlate", "SlotInference", "MODEL_VERSION"]
 
 # Bump when a change makes old checkpoints load into a different function.
-MODEL_VERSION = "dslate-1"
+MODEL_VERSION = "dslate-2"
 
 
-def sinusoid_2d(grid: int, dim: int) -> torch.Tensor:
-    """(1, grid*grid, dim) 2-D sine/cosine features of (row, col) with small amplitude."""
-    q = dim // 4
-    freqs = torch.exp(torch.linspace(0, -math.log(grid * 2.0), max(q, 1)))[:q] * math.pi   # (q,)
-    pos = torch.arange(grid, dtype=torch.float32) / grid
-    r, c = torch.meshgrid(pos, pos, indexing="ij")
-    feats = [f(x.flatten()[:, None] * freqs) for x in (r, c) for f in (torch.sin, torch.cos)]
-    out = torch.cat(feats, dim=1)                                   # (N, 4q)
-    out = torch.cat([out, torch.zeros(grid * grid, dim - out.shape[1])], dim=1)
-    return 0.5 * out[None]
+def scale_grad(x: torch.Tensor, scale: float) -> torch.Tensor:
+    """x in the forward pass; its gradient times `scale` in the backward pass."""
+    if scale == 1.0:
+        return x
+    return x.detach() if scale == 0.0 else x.detach() + scale * (x - x.detach())
 
 
 class SlotInference(NamedTuple):
     """Result of `DSlate.infer`: slots (B,K,D), types (B,K,Dz), states (B,K,Ds),
-    masks (B,K,H,W) summing to 1 over K, attention (B,K,N) at token resolution."""
+    masks (B,K,H,W) summing to 1 over K, attention (B,K,N') on the slot-attention
+    input grid (N' = cfg.mask_grid ** 2: the token grid, or the pixel CNN's)."""
     slots: torch.Tensor
     types: torch.Tensor
     states: torch.Tensor
@@ -72,7 +74,10 @@ class DSlate(nn.Module):
         # is informative from the first step (a from-scratch table is slow to learn on a CPU)
         self.pos_emb = nn.Parameter(sinusoid_2d(cfg.grid, d))
         self.mask_emb = nn.Parameter(torch.zeros(1, 1, d))             # [MASK] for token dropout
-        # SLATE's encoder MLP between the token embeddings and slot attention
+        # slot-attention inputs: the token embeddings (SLATE) or a pixel CNN (STEVE)
+        self.pixel_encoder = (PixelEncoder(d, sc.encoder_stride, cfg.image_size)
+                              if sc.encoder == "cnn" else None)
+        # SLATE's encoder MLP between those features and slot attention
         self.sa_in = nn.Sequential(nn.LayerNorm(d), nn.Linear(d, d), nn.ReLU(), nn.Linear(d, d))
         self.slot_attn = SlotAttention(d, sc.slot_dim, sc.num_slots, sc.iterations, sc.heads,
                                        sc.mlp_hidden)
@@ -81,6 +86,9 @@ class DSlate(nn.Module):
         dy = cfg.dynamics
         self.dynamics = Dynamics(sc.type_dim, sc.state_dim, cfg.action_dim, dy.hidden, dy.layers,
                                  dy.heads, dy.dropout)
+        mx = cfg.mixture
+        self.mixture = (MixtureDecoder(sc.slot_dim, cfg.grid, cfg.downsample, mx.hidden)
+                        if mx.weight > 0 else None)
 
     # ------------------------------------------------------------------ input checks
     def _check_images(self, images, ndim: int, what: str) -> torch.Tensor:
@@ -118,13 +126,19 @@ class DSlate(nn.Module):
         masked = (self.mask_emb + self.pos_emb).to(emb.dtype).expand_as(emb)
         return torch.where(drop[..., None], masked, emb)
 
-    def _tokens_to_slots(self, emb, T, init_slots=None, iterations=None, num_slots=None,
+    def _slot_inputs(self, x: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
+        """Slot-attention inputs (B, N', d) from images x (B, H, W, 3) in [0, 1] and their
+        token embeddings emb (B, N, d): the embeddings themselves, or the pixel CNN's features."""
+        feats = emb if self.pixel_encoder is None else self.pixel_encoder(x.to(emb.dtype))
+        return self.sa_in(feats)
+
+    def _inputs_to_slots(self, inp, T, init_slots=None, iterations=None, num_slots=None,
                          generator=None):
-        """emb (B*T, N, d) -> slots (B, T, K, D), attention (B, T, K, N); frame t+1 starts
+        """inp (B*T, N', d) -> slots (B, T, K, D), attention (B, T, K, N'); frame t+1 starts
         from frame t's slots."""
-        BT, N, d = emb.shape
+        BT, N, d = inp.shape
         B = BT // T
-        inp = self.sa_in(emb).reshape(B, T, N, d)
+        inp = inp.reshape(B, T, N, d)
         slots, attns, prev = [], [], init_slots
         for t in range(T):
             prev, attn = self.slot_attn(inp[:, t], init_slots=prev, iterations=iterations,
@@ -146,26 +160,34 @@ class DSlate(nn.Module):
             raise ValueError(f"actions must have shape {(B, T - 1, self.cfg.action_dim)}, "
                              f"got {tuple(actions.shape)}")
         x = videos.flatten(0, 1).float() / 255.0                       # (B*T, H, W, 3)
-        log_probs = self.dvae.encode(x)                                # (B*T, N, V)
-        soft, ids = self.dvae.sample(log_probs, tau)                   # (B*T, N, V), (B*T, N)
-        recon = self.dvae.decode(soft.to(log_probs.dtype))             # (B*T, H, W, 3)
+        code_logits = self.dvae.logits(x)                              # (B*T, N, V)
+        soft, ids = self.dvae.sample(code_logits, tau)                 # (B*T, N, V), (B*T, N)
+        recon = self.dvae.decode(soft.to(code_logits.dtype))           # (B*T, H, W, 3)
         mse = (recon.float() - x).pow(2).sum(dim=(1, 2, 3)).mean()
         if dvae_only:
             zero = mse.new_zeros(())
-            return {"loss": mse, "mse": mse, "ce": zero, "ce_dyn": zero}
+            return {"loss": mse, "mse": mse, "ce": zero, "ce_dyn": zero, "mix": zero}
 
         emb = self._embed(ids)                                         # (B*T, N, d)
-        slots, _ = self._tokens_to_slots(emb, T)                       # (B, T, K, D)
+        slots, _ = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D)
+        read = scale_grad(slots, self.cfg.decoder.slot_grad)           # what decoder/dynamics see
         dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
-        logits = self.decoder(dec_in, slots.flatten(0, 1))             # (B*T, N, V)
+        logits = self.decoder(dec_in, read.flatten(0, 1))              # (B*T, N, V)
         ce = F.cross_entropy(logits.flatten(0, 1).float(), ids.flatten(), reduction="sum") / (B * T)
 
-        pred = self.dynamics(slots[:, :-1], actions.to(videos.device))  # (B, T-1, K, D)
+        pred = self.dynamics(read[:, :-1], actions.to(videos.device))   # (B, T-1, K, D)
         emb_next = dec_in.reshape(B, T, *emb.shape[1:])[:, 1:].flatten(0, 1)
         logits_dyn = self.decoder(emb_next, pred.flatten(0, 1))        # (B*(T-1), N, V)
         ce_dyn = F.cross_entropy(logits_dyn.flatten(0, 1).float(), ids.reshape(B, T, -1)[:, 1:].flatten(),
                                  reduction="sum") / (B * (T - 1))
-        return {"loss": mse + ce + ce_dyn, "mse": mse, "ce": ce, "ce_dyn": ce_dyn}
+        loss = mse + ce + ce_dyn
+        mix = mse.new_zeros(())
+        if self.mixture is not None:
+            patches, _ = self.mixture(slots.flatten(0, 1))             # (B*T, N, p*p*3)
+            target = patchify(x, self.cfg.downsample)
+            mix = (patches - target).pow(2).sum(dim=(1, 2)).mean()
+            loss = loss + self.cfg.mixture.weight * mix
+        return {"loss": loss, "mse": mse, "ce": ce, "ce_dyn": ce_dyn, "mix": mix}
 
     # ------------------------------------------------------------------ inference API
     @torch.no_grad()
@@ -173,6 +195,13 @@ class DSlate(nn.Module):
         """images (B, H, W, 3) uint8 -> deterministic dVAE token ids (B, N)."""
         images = self._check_images(images, 4, "images")
         return self.dvae.tokenize(images.float() / 255.0)
+
+    @torch.no_grad()
+    def features(self, images) -> torch.Tensor:
+        """images (B, H, W, 3) uint8 -> slot-attention inputs (B, N', d), N' = cfg.mask_grid ** 2."""
+        images = self._check_images(images, 4, "images")
+        x = images.float() / 255.0
+        return self._slot_inputs(x, self._embed(self.dvae.tokenize(x)))
 
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
@@ -187,14 +216,14 @@ class DSlate(nn.Module):
         was_training = self.training
         self.eval()
         try:
-            ids = self.tokens(images)                                  # (B, N)
-            B = ids.shape[0]
+            inp = self.features(images)                                # (B, N', d)
+            B = inp.shape[0]
             gen = torch.Generator(device=self.device).manual_seed(int(seed))
             if init_slots is not None and tuple(init_slots.shape[::2]) != (B, self.slot_dim):
                 raise ValueError(f"init_slots must have shape (B={B}, K, D={self.slot_dim}), "
                                  f"got {tuple(init_slots.shape)}")
-            slots, attn = self._tokens_to_slots(
-                self._embed(ids), 1, init_slots=init_slots,
+            slots, attn = self._inputs_to_slots(
+                inp, 1, init_slots=init_slots,
                 iterations=iterations or self.cfg.slots.eval_iterations,
                 num_slots=num_slots, generator=gen)
             slots, attn = slots[:, 0].float(), attn[:, 0].float()      # (B, K, D), (B, K, N)
@@ -222,7 +251,7 @@ class DSlate(nn.Module):
         """attention (B, K, N) -> masks (B, K, H, W). Bilinear weights sum to one, so the
         masks still sum to one over K at every pixel."""
         B, K, _ = attn.shape
-        g, S = self.cfg.grid, self.cfg.image_size
+        g, S = self.cfg.mask_grid, self.cfg.image_size
         return F.interpolate(attn.reshape(B, K, g, g), size=(S, S), mode="bilinear",
                              align_corners=False)
 

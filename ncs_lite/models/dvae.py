@@ -71,16 +71,24 @@ class DVAE(nn.Module):
 
     def encode(self, images: torch.Tensor) -> torch.Tensor:
         """images (B, H, W, 3) in [0, 1] -> log-probabilities over codes (B, N, V)."""
-        return F.log_softmax(self.encoder(patchify(images, self.p)), dim=-1)
+        return F.log_softmax(self.logits(images), dim=-1)
 
-    def sample(self, log_probs: torch.Tensor, tau: float) -> tuple[torch.Tensor, torch.Tensor]:
+    def logits(self, images: torch.Tensor) -> torch.Tensor:
+        """images (B, H, W, 3) in [0, 1] -> unnormalised code logits (B, N, V); training feeds
+        these to `sample` directly (the log-softmax of `encode` would only shift each row)."""
+        return self.encoder(patchify(images, self.p))
+
+    def sample(self, logits: torch.Tensor, tau: float) -> tuple[torch.Tensor, torch.Tensor]:
         """Gumbel-softmax: (soft codes (B, N, V), sampled token ids (B, N)).
 
-        The ids are the argmax of the same perturbed logits as the soft codes: a sampled
-        (not argmax-of-logits) hard target, which SLATE feeds detached to the transformer.
+        `logits` may be unnormalised (or the log-probabilities of `encode`): softmax ignores
+        a per-row shift. The ids are the argmax of the same perturbed logits as the soft codes:
+        a sampled (not argmax-of-logits) hard target, which SLATE feeds detached to the
+        transformer. Gumbel noise is -log(E) with E ~ Exp(1): one random pass and one log
+        over the (B, N, V) tensor, the largest in a paper-width step.
         """
-        u = torch.rand_like(log_probs, dtype=torch.float32).clamp_(1e-10, 1.0 - 1e-7)
-        y = (log_probs.float() - torch.log(-torch.log(u))) / tau
+        g = torch.empty_like(logits, dtype=torch.float32).exponential_().log_().neg_()
+        y = (logits.float() + g).div_(tau)
         soft = torch.softmax(y, dim=-1)
         return soft, y.argmax(dim=-1).detach()
 
@@ -98,4 +106,4 @@ class DVAE(nn.Module):
 
     def tokenize(self, images: torch.Tensor) -> torch.Tensor:
         """Deterministic tokens for inference: argmax code per patch, (B, N) int64."""
-        return self.encode(images).argmax(dim=-1)
+        return self.logits(images).argmax(dim=-1)

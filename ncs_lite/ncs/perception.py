@@ -57,8 +57,8 @@ class OraclePerception:
 class DSlatePerception:
     """Learned entities from a trained dSLATE (`ncs_lite.load_dslate`).
 
-    type = z (the action-invariant half of the slot); state = the slot-attention mask at
-    token resolution (block-rearrange, Table 3) or the state half s of the slot ("slot").
+    type = z (the action-invariant half of the slot); state = the slot-attention mask pooled
+    to the 16x16 state grid like the oracle's (block-rearrange, Table 3) or the state half s of the slot ("slot").
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background.
     """
@@ -73,7 +73,7 @@ class DSlatePerception:
         self.state, self.batch_size = state, batch_size
 
     def _split(self, r):
-        return r.types, (r.attention if self.state == "mask" else r.states)
+        return r.types, (pool_masks(r.masks) if self.state == "mask" else r.states)
 
     def _entities(self, image) -> Entities:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots)
@@ -94,17 +94,17 @@ class DSlatePerception:
         object's ground-truth mask most at frame t.
         """
         frames = buffer["frames"]
-        states, attn = [], []
+        states, masks = [], []
         for i in range(0, len(frames), self.batch_size):
             r = self.model.infer_video(frames[i:i + self.batch_size], iterations=self.iterations,
                                        num_slots=self.num_slots)
             states.append(self._split(r)[1].cpu().float())
-            attn.append(r.attention.cpu().float())
-        states, attn = torch.cat(states), torch.cat(attn)             # (E, T, K, D), (E, T, K, N)
+            masks.append(pool_masks(r.masks).cpu().float())
+        states, masks = torch.cat(states), torch.cat(masks)           # (E, T, K, D), (E, T, K, N)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
         moved = torch.as_tensor(buffer["moved"])                       # (E, T-1)
         gt_moved = torch.gather(gt[:, :-1], 2, moved[..., None, None].expand(-1, -1, 1, gt.shape[-1]))
-        overlap = (attn[:, :-1] * gt_moved).sum(-1)                     # (E, T-1, K)
+        overlap = (masks[:, :-1] * gt_moved).sum(-1)                     # (E, T-1, K)
         true_slot = overlap.argmax(-1)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
                 buffer["actions"].reshape(-1, 6), true_slot.reshape(-1).numpy())
