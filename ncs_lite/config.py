@@ -14,8 +14,8 @@ import copy
 import math
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 
-__all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "MixtureConfig", "TrainConfig",
-           "DSlateConfig", "PRESETS", "get_preset", "from_dict", "to_dict", "table2_rows"]
+__all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "MixtureConfig",
+           "TrainConfig", "DSlateConfig", "PRESETS", "get_preset", "from_dict", "to_dict", "table2_rows"]
 
 
 @dataclass

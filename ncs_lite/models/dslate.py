@@ -126,11 +126,12 @@ class DSlate(nn.Module):
         masked = (self.mask_emb + self.pos_emb).to(emb.dtype).expand_as(emb)
         return torch.where(drop[..., None], masked, emb)
 
-    def _slot_inputs(self, x: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
-        """Slot-attention inputs (B, N', d) from images x (B, H, W, 3) in [0, 1] and their
-        token embeddings emb (B, N, d): the embeddings themselves, or the pixel CNN's features."""
-        feats = emb if self.pixel_encoder is None else self.pixel_encoder(x.to(emb.dtype))
-        return self.sa_in(feats)
+    def _slot_inputs(self, x: torch.Tensor, emb: torch.Tensor | None = None) -> torch.Tensor:
+        """Slot-attention inputs (B, N', d) from images x (B, H, W, 3) in [0, 1]: the pixel
+        CNN's features, or the token embeddings (pass `emb` if already computed)."""
+        if self.pixel_encoder is not None:
+            return self.sa_in(self.pixel_encoder(x))
+        return self.sa_in(self._embed(self.dvae.tokenize(x)) if emb is None else emb)
 
     def _inputs_to_slots(self, inp, T, init_slots=None, iterations=None, num_slots=None,
                          generator=None):
@@ -200,8 +201,7 @@ class DSlate(nn.Module):
     def features(self, images) -> torch.Tensor:
         """images (B, H, W, 3) uint8 -> slot-attention inputs (B, N', d), N' = cfg.mask_grid ** 2."""
         images = self._check_images(images, 4, "images")
-        x = images.float() / 255.0
-        return self._slot_inputs(x, self._embed(self.dvae.tokenize(x)))
+        return self._slot_inputs(images.float() / 255.0)
 
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,

@@ -25,7 +25,6 @@ __all__ = ["MixtureDecoder"]
 class MixtureDecoder(nn.Module):
     def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int):
         super().__init__()
-        self.grid, self.patch = grid, patch
         self.pos = nn.Parameter(sinusoid_2d(grid, hidden))           # (1, N, hidden)
         self.inp = nn.Linear(slot_dim, hidden)
         out = patch * patch * 3 + 1                                   # pixels + alpha logit

@@ -58,7 +58,8 @@ class DSlatePerception:
     """Learned entities from a trained dSLATE (`ncs_lite.load_dslate`).
 
     type = z (the action-invariant half of the slot); state = the slot-attention mask pooled
-    to the 16x16 state grid like the oracle's (block-rearrange, Table 3) or the state half s of the slot ("slot").
+    to the 16x16 state grid like the oracle's (block-rearrange, Table 3) or the state half s
+    of the slot ("slot").
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background.
     """
@@ -98,13 +99,14 @@ class DSlatePerception:
         for i in range(0, len(frames), self.batch_size):
             r = self.model.infer_video(frames[i:i + self.batch_size], iterations=self.iterations,
                                        num_slots=self.num_slots)
-            states.append(self._split(r)[1].cpu().float())
-            masks.append(pool_masks(r.masks).cpu().float())
+            pooled = pool_masks(r.masks).cpu().float()
+            masks.append(pooled)
+            states.append(pooled if self.state == "mask" else r.states.cpu().float())
         states, masks = torch.cat(states), torch.cat(masks)           # (E, T, K, D), (E, T, K, N)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
         moved = torch.as_tensor(buffer["moved"])                       # (E, T-1)
         gt_moved = torch.gather(gt[:, :-1], 2, moved[..., None, None].expand(-1, -1, 1, gt.shape[-1]))
-        overlap = (masks[:, :-1] * gt_moved).sum(-1)                     # (E, T-1, K)
+        overlap = (masks[:, :-1] * gt_moved).sum(-1)                   # (E, T-1, K)
         true_slot = overlap.argmax(-1)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
                 buffer["actions"].reshape(-1, 6), true_slot.reshape(-1).numpy())
