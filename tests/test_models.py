@@ -1,5 +1,6 @@
 """Unit tests of dSLATE's parts on tiny configs (CPU, a few seconds)."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -151,16 +152,17 @@ def test_dynamics_carries_type_exactly_and_is_equivariant():
 
 
 # ---------------------------------------------------------------- dSLATE
-@pytest.mark.parametrize("token_dropout, encoder, mixture, slot_grad", [
-    (0.0, "tokens", 0.0, 1.0),                              # the paper's model
-    (0.5, "tokens", 0.0, 1.0),
-    (0.5, "cnn", 0.5, 0.0),                                 # the `reduced` preset's choices
+@pytest.mark.parametrize("token_dropout, encoder, mixture, alpha, slot_grad", [
+    (0.0, "tokens", 0.0, "decoder", 1.0),                   # the paper's model
+    (0.5, "tokens", 0.5, "decoder", 1.0),
+    (0.5, "tokens", 0.5, "attention", 1.0),
+    (0.5, "cnn", 0.5, "attention", 0.0),                    # the `reduced` preset's choices
 ])
-def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, slot_grad):
+def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha, slot_grad):
     torch.manual_seed(0)
     cfg = tiny_cfg()
     cfg.decoder.token_dropout, cfg.decoder.slot_grad = token_dropout, slot_grad
-    cfg.slots.encoder, cfg.mixture.weight = encoder, mixture
+    cfg.slots.encoder, cfg.mixture.weight, cfg.mixture.alpha = encoder, mixture, alpha
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
@@ -195,6 +197,23 @@ def test_mixture_decoder_alpha_and_permutation():
     perm = torch.tensor([2, 0, 1])
     p2, a2 = mix(slots[:, perm])
     assert torch.allclose(p2, patches, atol=1e-6) and torch.allclose(a2, alpha[:, perm])
+
+
+def test_mixture_decoder_attention_alpha():
+    torch.manual_seed(0)
+    mix = MixtureDecoder(slot_dim=6, grid=4, patch=2, hidden=8, alpha="attention")
+    slots, attn = torch.randn(2, 3, 6), torch.softmax(torch.randn(2, 3, 16), dim=1)
+    patches, alpha = mix(slots, attn)
+    assert torch.equal(alpha, attn)                               # the masks are the mixing weights
+    each = mix.mlp(mix.inp(slots)[:, :, None] + mix.pos[:, None])  # (B, K, N, 12): every slot's paint
+    assert torch.allclose(patches, (attn[..., None] * each).sum(1), atol=1e-6)
+    attn.requires_grad_(True)
+    mix(slots, attn)[0].pow(2).sum().backward()
+    assert attn.grad.abs().sum() > 0                              # the error reaches the masks
+    with pytest.raises(ValueError, match="needs attention of shape"):
+        mix(slots)
+    with pytest.raises(ValueError, match="alpha must be one of"):
+        MixtureDecoder(6, 4, 2, 8, alpha="slots")
 
 
 @pytest.mark.parametrize("slot_grad", [0.0, 0.5])
@@ -292,3 +311,15 @@ def test_foreground_ari_ignores_background():
     assert foreground_ari(merged, true)[0] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="must be bool"):
         foreground_ari(pred, true.astype(float))
+
+
+@pytest.mark.parametrize("part, name, value, message", [
+    ("slots", "encoder", "pixels", "slots.encoder must be 'tokens' or 'cnn', got 'pixels'"),
+    ("mixture", "alpha", "slots", "mixture.alpha must be 'decoder' or 'attention', got 'slots'"),
+    ("train", "precision", "fp16", "train.precision must be 'auto', 'bf16' or 'fp32', got 'fp16'"),
+])
+def test_config_rejects_bad_values_by_name(part, name, value, message):
+    cfg = get_preset("ci")
+    setattr(getattr(cfg, part), name, value)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        cfg.validate()

@@ -87,8 +87,9 @@ class DSlate(nn.Module):
         self.dynamics = Dynamics(sc.type_dim, sc.state_dim, cfg.action_dim, dy.hidden, dy.layers,
                                  dy.heads, dy.dropout)
         mx = cfg.mixture
-        self.mixture = (MixtureDecoder(sc.slot_dim, cfg.grid, cfg.downsample, mx.hidden)
-                        if mx.weight > 0 else None)
+        mix_grid = cfg.mask_grid if mx.alpha == "attention" else cfg.grid
+        self.mixture = (MixtureDecoder(sc.slot_dim, mix_grid, cfg.image_size // mix_grid, mx.hidden,
+                                       mx.alpha) if mx.weight > 0 else None)
 
     # ------------------------------------------------------------------ input checks
     def _check_images(self, images, ndim: int, what: str) -> torch.Tensor:
@@ -170,7 +171,7 @@ class DSlate(nn.Module):
             return {"loss": mse, "mse": mse, "ce": zero, "ce_dyn": zero, "mix": zero}
 
         emb = self._embed(ids)                                         # (B*T, N, d)
-        slots, _ = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D)
+        slots, attn = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D), (B, T, K, N')
         read = scale_grad(slots, self.cfg.decoder.slot_grad)           # what decoder/dynamics see
         dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
         logits = self.decoder(dec_in, read.flatten(0, 1))              # (B*T, N, V)
@@ -184,8 +185,8 @@ class DSlate(nn.Module):
         loss = mse + ce + ce_dyn
         mix = mse.new_zeros(())
         if self.mixture is not None:
-            patches, _ = self.mixture(slots.flatten(0, 1))             # (B*T, N, p*p*3)
-            target = patchify(x, self.cfg.downsample)
+            patches, _ = self.mixture(slots.flatten(0, 1), attn.flatten(0, 1))  # (B*T, N, p*p*3)
+            target = patchify(x, self.cfg.image_size // self.mixture.grid)
             mix = (patches - target).pow(2).sum(dim=(1, 2)).mean()
             loss = loss + self.cfg.mixture.weight * mix
         return {"loss": loss, "mse": mse, "ce": ce, "ce_dyn": ce_dyn, "mix": mix}

@@ -5,12 +5,20 @@ to give slot attention an object bias it cannot get fast enough from SLATE's dec
 CPU budget. The autoregressive decoder can rebuild a whole scene from any grouping of
 the tokens, so nothing makes one slot hold one cube. Here, as in the original slot
 attention autoencoder (Locatello et al., 2020) and DINOSAUR's MLP decoder (Seitzer et al.,
-2023), every slot is decoded *independently* into an image patch per token position plus
-an alpha logit; a softmax over slots mixes them. A slot can only explain pixels it paints
-itself, so the cheapest way to reconstruct four cubes is one slot per cube.
+2023), every slot is decoded *independently* into an image patch per grid position; the
+slots' patches are mixed with weights that sum to one over slots. A slot can only explain
+pixels it paints itself, so the cheapest way to reconstruct four cubes is one slot per cube.
 
-It works at the token grid (one p x p x 3 pixel patch per token), so it costs a small
-MLP over K x N positions. Shapes: slots (B, K, D) -> patches (B, N, p*p*3), alpha (B, K, N).
+Where the mixing weights (alpha) come from:
+* "decoder": each slot also paints an alpha logit, softmax over slots (Locatello et al.);
+* "attention": alpha is slot attention's own mask. The reconstruction error then reaches
+  the attention logits directly: a pixel that a slot cannot paint pushes the pixel toward
+  another slot, soft k-means with learned colours. On block-rearrange this broke the
+  "every slot paints the floor" plateau 2-3x sooner than "decoder" (measured, README).
+  The decoder must then work on slot attention's grid (patch = image size / grid).
+
+It costs a small MLP over K x N positions. Shapes: slots (B, K, D) [, attention (B, K, N)]
+-> patches (B, N, p*p*3), alpha (B, K, N) summing to 1 over K.
 """
 from __future__ import annotations
 
@@ -21,20 +29,33 @@ from .positional import sinusoid_2d
 
 __all__ = ["MixtureDecoder"]
 
+ALPHAS = ("decoder", "attention")
+
 
 class MixtureDecoder(nn.Module):
-    def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int):
+    def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int, alpha: str = "decoder"):
         super().__init__()
+        if alpha not in ALPHAS:
+            raise ValueError(f"alpha must be one of {ALPHAS}, got {alpha!r}")
+        self.alpha, self.grid = alpha, grid
         self.pos = nn.Parameter(sinusoid_2d(grid, hidden))           # (1, N, hidden)
         self.inp = nn.Linear(slot_dim, hidden)
-        out = patch * patch * 3 + 1                                   # pixels + alpha logit
-        self.mlp = nn.Sequential(nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))
+        out = patch * patch * 3 + (alpha == "decoder")                # pixels [+ alpha logit]
+        # one hidden layer: it runs at K x N positions, the largest activations of the step
+        self.mlp = nn.Sequential(nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))
 
-    def forward(self, slots: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """slots (B, K, D) -> (mixed patches (B, N, p*p*3), alpha (B, K, N) summing to 1 over K)."""
+    def forward(self, slots: torch.Tensor, attention: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """slots (B, K, D) [, attention (B, K, N) for alpha "attention"] -> (mixed patches
+        (B, N, p*p*3), alpha (B, K, N) summing to 1 over K)."""
         h = self.inp(slots)[:, :, None] + self.pos[:, None]          # (B, K, N, hidden)
-        out = self.mlp(h)                                             # (B, K, N, p*p*3 + 1)
-        alpha = torch.softmax(out[..., -1].float(), dim=1)            # over slots
-        patches = (alpha[..., None] * out[..., :-1].float()).sum(1)   # (B, N, p*p*3)
-        return patches, alpha
+        out = self.mlp(h).float()                                     # (B, K, N, p*p*3 [+ 1])
+        if self.alpha == "decoder":
+            alpha, pixels = torch.softmax(out[..., -1], dim=1), out[..., :-1]
+        else:
+            if attention is None or attention.shape != out.shape[:3]:
+                got = None if attention is None else tuple(attention.shape)
+                raise ValueError(f"alpha 'attention' needs attention of shape {tuple(out.shape[:3])}, "
+                                 f"got {got}")
+            alpha, pixels = attention.float(), out
+        return (alpha[..., None] * pixels).sum(1), alpha
