@@ -18,10 +18,12 @@ from .models.dslate import DSlate
 from .training import read_checkpoint, resolve_device
 from .utils import PACKAGE_DIR, cache_dir
 
-__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT"]
+__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH"]
 
 # The `reduced` block-rearrange checkpoint shipped with the kit (see README for the command).
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
+# its NCS graph (`python -m ncs_lite graph ... --clusters 30`, see README)
+SHIPPED_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced.pt"
 # 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
 
@@ -45,33 +47,6 @@ def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
     model.checkpoint_info = {k: ckpt.get(k) for k in ("step", "env", "data", "precision", "seconds",
                                                       "last", "code_version")}
     return model.to(device).eval()
-
-
-def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
-                  env: str = "block-rearrange") -> tuple[DSlate, Path]:
-    """The notebooks' "load the checkpoint if present, else train" step: (model, path).
-
-    Loads the shipped checkpoint unless `train_from_scratch` is set or it is missing; then
-    trains at `preset` on a cached buffer. The trained checkpoint is cached under a name
-    keyed by the config and the model code, and an interrupted training resumes.
-    """
-    import hashlib
-    import json
-
-    from .config import get_preset, to_dict
-    from .data import cached_buffer
-    from .models.dslate import MODEL_VERSION
-    from .training import train
-    from .utils import cache_dir
-
-    if not train_from_scratch and env == "block-rearrange" and SHIPPED_CHECKPOINT.exists():
-        return load_dslate(SHIPPED_CHECKPOINT), SHIPPED_CHECKPOINT
-    cfg = get_preset(preset)
-    key = hashlib.sha1((json.dumps(to_dict(cfg), sort_keys=True) + MODEL_VERSION).encode()).hexdigest()[:10]
-    out = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}-{key}.pt"
-    data = cached_buffer(cfg.train.episodes_per_epoch, env=env, seed=seed)
-    train(cfg, data, out, resume=out.exists(), env=env)
-    return load_dslate(out), out
 
 
 def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,

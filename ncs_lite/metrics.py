@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["adjusted_rand_index", "foreground_ari"]
+__all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background"]
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -65,6 +65,31 @@ def foreground_ari(pred_masks, true_masks) -> np.ndarray:
     for b in range(pred.shape[0]):
         if fg[b].any():
             out[b] = adjusted_rand_index(true_label[b][fg[b]], pred_label[b][fg[b]])
+    return out
+
+
+def absorbed_by_background(pred_masks, true_masks) -> np.ndarray:
+    """Which objects have no slot of their own, (B, k) bool.
+
+    An object is absorbed when the slot winning most of its pixels (argmax over slots) is
+    the slot winning most background pixels. fg-ARI hides this when it always happens to
+    the same object: one cube merged with the floor costs only its own pixels' pairs, yet
+    NCS can neither see nor move that cube (notebooks 03 and 06).
+    """
+    pred = pred_masks.detach().cpu().numpy() if isinstance(pred_masks, torch.Tensor) else np.asarray(pred_masks)
+    true = np.asarray(true_masks.cpu() if isinstance(true_masks, torch.Tensor) else true_masks)
+    if pred.ndim != 4 or true.ndim != 4 or pred.shape[0] != true.shape[0] or pred.shape[2:] != true.shape[2:]:
+        raise ValueError(f"masks must have shapes (B, K, H, W) and (B, k, H, W) with equal B, H, W, "
+                         f"got predicted {pred.shape} and ground truth {true.shape}")
+    K = pred.shape[1]
+    won = pred.argmax(axis=1)                                           # (B, H, W)
+    out = np.zeros(true.shape[:2], bool)
+    for b in range(len(won)):
+        floor = ~true[b].any(0)
+        background = np.bincount(won[b][floor], minlength=K).argmax() if floor.any() else -1
+        for o in range(true.shape[1]):
+            if true[b, o].any():
+                out[b, o] = np.bincount(won[b][true[b, o]], minlength=K).argmax() == background
     return out
 
 

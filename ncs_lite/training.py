@@ -324,11 +324,17 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--precision", default=None, choices=["auto", "bf16", "fp32"],
                    help="override the preset's precision")
+    p.add_argument("--seed", type=int, default=None,
+                   help="override the preset's train.seed (initial weights and batch order)")
     p.set_defaults(func=_main)
 
 
 def _main(args) -> None:
     cfg = get_preset(args.preset)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+        cfg.train.seed = args.seed
     t0 = time.perf_counter()
     path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
                  max_steps=args.steps, env=args.env, precision=args.precision)

@@ -8,7 +8,7 @@ import torch
 
 from ncs_lite.config import (DSlateConfig, config_diff, from_dict, get_preset, table2_rows,
                              to_dict)
-from ncs_lite.metrics import adjusted_rand_index, foreground_ari
+from ncs_lite.metrics import absorbed_by_background, adjusted_rand_index, foreground_ari
 from ncs_lite.models import DSlate, Dynamics, SlotAttention, TransformerDecoder, tau_schedule
 from ncs_lite.models.dvae import DVAE, patchify, unpatchify
 from ncs_lite.models.mixture_decoder import MixtureDecoder
@@ -187,6 +187,33 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     assert vid.slots.shape == (2, 3, K, Dz + Ds) and vid.masks.shape == (2, 3, K, 64, 64)
 
 
+@pytest.mark.parametrize("mixture", [0.0, 1.0])
+def test_restarts_keep_the_best_reconstruction_per_image(mixture):
+    """restarts=R: per image, the restart with the lowest reconstruction error (mixture
+    decoder, or token cross-entropy without one), and never worse than restart 0 alone."""
+    torch.manual_seed(0)
+    cfg = tiny_cfg()
+    cfg.mixture.weight = mixture
+    m = DSlate(cfg).eval()
+    images = videos(B=3, T=1)[0][:, 0]
+    x = images.float() / 255
+    best = m.infer(images, restarts=4, seed=5)
+    err_best = m.reconstruction_error(x, best.slots, best.attention)
+    # every restart, one image batch at a time: the same initial draws as the batched call
+    per_restart = m.infer(images.repeat(4, 1, 1, 1), seed=5)
+    err_all = m.reconstruction_error(x.repeat(4, 1, 1, 1), per_restart.slots,
+                                     per_restart.attention).reshape(4, 3)
+    assert torch.allclose(err_best, err_all.min(0).values, rtol=1e-5)
+    assert (err_best <= err_all[0] + 1e-4).all()
+    assert torch.allclose(best.masks.sum(1), torch.ones(3, 64, 64), atol=1e-5)
+    assert best.slots.shape == (3, cfg.slots.num_slots, cfg.slots.slot_dim)
+    assert m.infer_video(videos(B=2, T=3)[0], restarts=2).slots.shape[:2] == (2, 3)
+    with pytest.raises(ValueError, match="restarts must be a positive integer, got 0"):
+        m.infer(images, restarts=0)
+    with pytest.raises(ValueError, match="cannot be combined with init_slots"):
+        m.infer(images, restarts=2, init_slots=best.slots)
+
+
 def test_mixture_decoder_alpha_and_permutation():
     torch.manual_seed(0)
     mix = MixtureDecoder(slot_dim=6, grid=4, patch=2, hidden=8)
@@ -311,6 +338,18 @@ def test_foreground_ari_ignores_background():
     assert foreground_ari(merged, true)[0] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="must be bool"):
         foreground_ari(pred, true.astype(float))
+
+
+def test_absorbed_by_background_names_the_merged_object():
+    true = np.zeros((1, 2, 8, 8), bool)
+    true[0, 0, :2, :2] = True            # object 0 gets its own slot (1)
+    true[0, 1, 4:6, 4:6] = True          # object 1 is painted by the floor's slot (0)
+    pred = np.zeros((1, 3, 8, 8))
+    pred[0, 0] = 1.0
+    pred[0, 0, :2, :2], pred[0, 1, :2, :2] = 0.0, 1.0
+    np.testing.assert_array_equal(absorbed_by_background(pred, true), [[False, True]])
+    with pytest.raises(ValueError, match="equal B, H, W"):
+        absorbed_by_background(pred, true[:, :, :4])
 
 
 @pytest.mark.parametrize("part, name, value, message", [

@@ -80,6 +80,40 @@ def test_constraint_distance_zero_when_satisfied():
     assert d[:2].abs().max() < 1e-6 and d[2] > 0
 
 
+def test_agent_treats_same_node_pairs_as_satisfied():
+    """A pair whose current and goal states bind to one node is never selected: the graph
+    has no transition for it (policy.py). Only the other pair can be chosen."""
+    from collections import Counter
+
+    import gymnasium as gym
+
+    from ncs_lite.ncs.perception import Entities
+    from ncs_lite.ncs.policy import NCSAgent
+
+    centroids = torch.eye(4)                       # node i = unit vector e_i
+    graph = TransitionGraph(centroids, "cosine", {(2, 3): Counter({(1.0,) * 6: 1})})
+    types = torch.eye(2)
+    # pair 0: current e_0 + noise vs goal e_0 (same node 0, distance > 0); pair 1: e_2 -> e_3
+    current = Entities(types, torch.stack([torch.tensor([1.0, 0.3, 0, 0]), torch.eye(4)[2]]))
+    goal = Entities(types, torch.stack([torch.eye(4)[0], torch.eye(4)[3]]))
+
+    class Fixed:
+        def current(self, obs, info):
+            return current
+
+        def goal(self, obs, info):
+            return goal
+
+    space = gym.spaces.Box(-1, 1, (6,))
+    agent = NCSAgent(graph, Fixed(), space, seed=0)
+    agent.reset(None, None)
+    for _ in range(20):
+        action, was_random = agent.act(None, None)
+        assert not was_random and agent.last["selected"] == 1
+        np.testing.assert_array_equal(action, np.ones(6, np.float32))
+    assert agent.last["distances"][0] == 0
+
+
 def test_pool_masks():
     m = np.zeros((2, 64, 64), bool)
     m[0, :4, :4] = True

@@ -32,6 +32,7 @@ PALETTE = np.array([
     [0.98, 0.55, 0.05],  # orange
     [0.98, 0.98, 0.98],  # white
 ], dtype=np.float32)
+COLOR_NAMES = ("red", "green", "blue", "yellow", "magenta", "cyan", "orange", "white")
 FLOOR_RGB = (0.35, 0.35, 0.38)
 
 

@@ -206,28 +206,45 @@ class DSlate(nn.Module):
 
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
-              init_slots: torch.Tensor | None = None, seed: int = 0) -> SlotInference:
+              init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1) -> SlotInference:
         """Slots and masks of single images.
 
         images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations (7);
         num_slots overrides K (e.g. 8 slots for 7 objects: slot attention works for any K);
         init_slots (B, K, D) continues from a previous frame; `seed` fixes the initial
         slot sample so inference is reproducible.
+
+        restarts > 1 runs slot attention from that many initial samples and keeps, per image,
+        the one the model itself reconstructs best (`reconstruction_error`: no ground truth).
+        Slot attention is a local search: now and then two slots share a cube and another
+        cube falls into the background slot, and a fresh start usually avoids it (measured on
+        the shipped model: fg-ARI 0.91 -> 0.97 at 4 objects with 4 restarts; notebook 03).
         """
+        if not isinstance(restarts, int) or restarts < 1:
+            raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
+        if init_slots is not None and restarts > 1:
+            raise ValueError("restarts > 1 draws fresh initial slots; it cannot be combined with init_slots")
         was_training = self.training
         self.eval()
         try:
-            inp = self.features(images)                                # (B, N', d)
+            images = self._check_images(images, 4, "images")
+            x = images.float() / 255.0                                  # (B, H, W, 3)
+            inp = self._slot_inputs(x)                                  # (B, N', d)
             B = inp.shape[0]
             gen = torch.Generator(device=self.device).manual_seed(int(seed))
             if init_slots is not None and tuple(init_slots.shape[::2]) != (B, self.slot_dim):
                 raise ValueError(f"init_slots must have shape (B={B}, K, D={self.slot_dim}), "
                                  f"got {tuple(init_slots.shape)}")
+            # all restarts in one batch: row r * B + b is restart r of image b
             slots, attn = self._inputs_to_slots(
-                inp, 1, init_slots=init_slots,
+                inp.repeat(restarts, 1, 1), 1, init_slots=init_slots,
                 iterations=iterations or self.cfg.slots.eval_iterations,
                 num_slots=num_slots, generator=gen)
-            slots, attn = slots[:, 0].float(), attn[:, 0].float()      # (B, K, D), (B, K, N)
+            slots, attn = slots[:, 0].float(), attn[:, 0].float()      # (R*B, K, D), (R*B, K, N')
+            if restarts > 1:
+                err = self.reconstruction_error(x.repeat(restarts, 1, 1, 1), slots, attn)
+                best = err.reshape(restarts, B).argmin(0) * B + torch.arange(B, device=self.device)
+                slots, attn = slots[best], attn[best]
             masks = self.upsample_masks(attn)
             return SlotInference(slots, slots[..., :self.type_dim], slots[..., self.type_dim:],
                                  masks, attn)
@@ -235,15 +252,33 @@ class DSlate(nn.Module):
             self.train(was_training)
 
     @torch.no_grad()
+    def reconstruction_error(self, x: torch.Tensor, slots: torch.Tensor,
+                             attention: torch.Tensor) -> torch.Tensor:
+        """How badly slots explain their images, per image (B,): lower is better.
+
+        x (B, H, W, 3) in [0, 1]. With a mixture decoder: its summed squared pixel error (the
+        `mix` loss); without one (the paper's model): the decoder's token cross-entropy of the
+        dVAE's tokens, teacher-forced (the `ce` loss). Used to rank restarts in `infer`."""
+        if self.mixture is not None:
+            patches, _ = self.mixture(slots, attention)                # (B, N, p*p*3)
+            target = patchify(x, self.cfg.image_size // self.mixture.grid)
+            return (patches - target).pow(2).sum(dim=(1, 2))
+        ids = self.dvae.tokenize(x)                                     # (B, N)
+        logits = self.decoder(self._embed(ids), slots.to(self.pos_emb.dtype))  # (B, N, V)
+        return F.cross_entropy(logits.float().transpose(1, 2), ids, reduction="none").sum(1)
+
+    @torch.no_grad()
     def infer_video(self, videos, iterations: int | None = None, num_slots: int | None = None,
-                    seed: int = 0) -> SlotInference:
+                    seed: int = 0, restarts: int = 1) -> SlotInference:
         """Like `infer` for videos (B, T, H, W, 3): each frame starts from the previous frame's
-        slots, so slot k tracks one object. Outputs gain a T axis: slots (B, T, K, D), ..."""
+        slots, so slot k tracks one object (`restarts` apply to the first frame).
+        Outputs gain a T axis: slots (B, T, K, D), ..."""
         videos = self._check_images(videos, 5, "videos")
         B, T = videos.shape[:2]
         out, prev = [], None
         for t in range(T):
-            r = self.infer(videos[:, t], iterations, num_slots, init_slots=prev, seed=seed)
+            r = self.infer(videos[:, t], iterations, num_slots, init_slots=prev, seed=seed,
+                           restarts=restarts if prev is None else 1)
             out.append(r)
             prev = r.slots
         return SlotInference(*(torch.stack(x, 1) for x in zip(*out)))

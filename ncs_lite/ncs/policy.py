@@ -7,7 +7,15 @@ Each step:
    current and goal states and sample one from the categorical distribution proportional
    to those distances (the paper found sampling better than argmax).
 3. bind both states to nodes and take the action on the edge between them; with no such
-   edge (or both bound to one node) take a random action.
+   edge take a random action.
+
+One decision the paper leaves open: a pair whose current and goal states bind to the *same*
+node counts as satisfied (its distance is set to 0 before sampling). The graph holds no
+transition for it, so selecting it could only lead to a random action, and a random action
+can undo a cube already in place. Learned masks are soft, so an object already at its goal
+still has a small non-zero distance and was sampled again and again: before the rule, 104
+of 362 decisions (30 tasks, 4 objects) picked a cube already in place and acted at random.
+With ground-truth states (the oracle) same-node pairs are the satisfied ones.
 """
 from __future__ import annotations
 
@@ -48,13 +56,14 @@ class NCSAgent:
         cur = self.perception.current(obs, info)
         g_idx, c_idx = align(cur.types, self._goal.types)
         dist = constraint_distances(cur.states[c_idx], self._goal.states[g_idx]).numpy().astype(np.float64)
+        src, dst = self.graph.bind(torch.stack([cur.states[c_idx], self._goal.states[g_idx]])).numpy()  # (P,) each
+        dist[src == dst] = 0.0                    # same node: satisfied at the graph's resolution
         self.last = {"goal_index": g_idx, "current_index": c_idx, "distances": dist}
         if dist.sum() <= 0:
             return self._random("every constraint looks satisfied")
         pick = int(self.rng.choice(len(dist), p=dist / dist.sum()))
-        src, dst = self.graph.bind(torch.stack([cur.states[c_idx[pick]], self._goal.states[g_idx[pick]]])).tolist()
-        self.last.update(selected=pick, src=src, dst=dst)
-        action = self.graph.action(src, dst) if src != dst else None
+        self.last.update(selected=pick, src=int(src[pick]), dst=int(dst[pick]))
+        action = self.graph.action(src[pick], dst[pick])
         if action is None:
             return self._random("no edge")
         return action, False
