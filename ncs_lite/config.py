@@ -79,6 +79,8 @@ class MixtureConfig:
     hidden: int = 128           # MLP width
     alpha: str = "decoder"      # mixing weights: "decoder" = painted alpha logits on the token
     #                             grid; "attention" = slot attention's masks on its own grid
+    foreground_weight: float = 1.0  # weight of pixels far from the image's median colour in
+    #                             the reconstruction (1 = plain sum), see DSlate.mixture_error
 
 
 @dataclass
@@ -147,6 +149,8 @@ class DSlateConfig:
                              f"({self.slots.encoder_stride})")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
+        if not self.mixture.foreground_weight >= 1.0:
+            raise ValueError(f"mixture.foreground_weight must be >= 1, got {self.mixture.foreground_weight}")
         if self.train.precision not in ("auto", "bf16", "fp32"):
             raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
         if self.train.lr_decay not in ("none", "cosine"):
@@ -192,7 +196,7 @@ def _reduced() -> DSlateConfig:
         decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5,
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0),
-        mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention"),
+        mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0),
         train=TrainConfig(epochs=10, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250),
@@ -209,7 +213,7 @@ def _ci() -> DSlateConfig:
         decoder=DecoderConfig(layers=1, heads=2, hidden=16, dropout=0.1, token_dropout=0.25,
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1),
-        mixture=MixtureConfig(weight=1.0, hidden=16, alpha="attention"),
+        mixture=MixtureConfig(weight=1.0, hidden=16, alpha="attention", foreground_weight=5.0),
         train=TrainConfig(epochs=1, episodes_per_epoch=16, window=2, batch_size=4, lr=1e-3,
                           warmup_steps=2, dvae_warmup_steps=1, precision="fp32",
                           checkpoint_every=2),

@@ -214,6 +214,29 @@ def test_restarts_keep_the_best_reconstruction_per_image(mixture):
         m.infer(images, restarts=2, init_slots=best.slots)
 
 
+def test_mixture_error_weights_pixels_far_from_the_median_colour():
+    torch.manual_seed(0)
+    cfg = tiny_cfg()
+    cfg.mixture.foreground_weight = 1.0
+    m = DSlate(cfg).eval()
+    x = torch.full((2, 64, 64, 3), 0.3)
+    x[:, 8:16, 8:16] = torch.tensor([0.1, 0.7, 0.1])       # one "cube", far from the floor
+    r = m.infer((x * 255).round().to(torch.uint8))
+    x = (x * 255).round() / 255
+    plain = m.mixture_error(x, r.slots, r.attention)
+    m.cfg.mixture.foreground_weight = 5.0
+    weighted = m.mixture_error(x, r.slots, r.attention)
+    patches, _ = m.mixture(r.slots, r.attention)
+    err = (patches - patchify(x, 64 // m.mixture.grid)).pow(2)
+    far = torch.zeros(2, 64, 64, 3)
+    far[:, 8:16, 8:16] = 1
+    cube = (err * patchify(far, 64 // m.mixture.grid)).sum(dim=(1, 2))
+    assert torch.allclose(weighted, plain + 4 * cube, rtol=1e-4)
+    with pytest.raises(ValueError, match="foreground_weight must be >= 1, got 0.5"):
+        cfg.mixture.foreground_weight = 0.5
+        cfg.validate()
+
+
 def test_mixture_decoder_alpha_and_permutation():
     torch.manual_seed(0)
     mix = MixtureDecoder(slot_dim=6, grid=4, patch=2, hidden=8)
