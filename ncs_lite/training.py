@@ -183,13 +183,16 @@ def _save(path, model, opt, cfg, step, device, precision, env, data_meta, second
 # ---------------------------------------------------------------------- the loop
 def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume: bool = False,
           device=None, max_steps: int | None = None, env: str = "block-rearrange",
-          precision: str | None = None) -> Path:
+          precision: str | None = None, compile: bool = False) -> Path:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
     Runs until `cfg.train.total_steps()` (epochs x episodes per epoch / batch) or, if
     given, until global step `max_steps` (schedules still follow the full run, so a run
     stopped with `max_steps` and resumed matches an uninterrupted one). Returns `out_path`.
     `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
+    `compile` runs the forward through `torch.compile` (inductor: fuses the elementwise work
+    around the matmuls; the paper-width bf16 step measured 1.51x faster on a CPU, see
+    `bench train`). The first steps pay the compilation; checkpoints are unchanged.
     """
     from .data import EpisodeDataset, load_manifest
 
@@ -210,6 +213,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
 
     seed_everything(cfg.train.seed)
     model = DSlate(cfg).to(device)
+    forward = torch.compile(model) if compile else model          # same parameters
     opt = build_optimizer(model, cfg)
     step, seconds = 0, 0.0
     csv_path = out_path.with_suffix(".csv")
@@ -255,7 +259,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
                 g["lr"] = cfg.dvae.lr if g.get("name") == "dvae" else lr
 
             with autocast(device, precision):
-                out = model(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps)
+                out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 _non_finite("loss", loss, step, out_path, last_saved)
@@ -324,6 +328,8 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--precision", default=None, choices=["auto", "bf16", "fp32"],
                    help="override the preset's precision")
+    p.add_argument("--compile", action="store_true",
+                   help="torch.compile the forward (faster steps after a compilation pause)")
     p.add_argument("--seed", type=int, default=None,
                    help="override the preset's train.seed (initial weights and batch order)")
     p.set_defaults(func=_main)
@@ -337,7 +343,7 @@ def _main(args) -> None:
         cfg.train.seed = args.seed
     t0 = time.perf_counter()
     path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
-                 max_steps=args.steps, env=args.env, precision=args.precision)
+                 max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile)
     ckpt = read_checkpoint(path)
     print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
           f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "

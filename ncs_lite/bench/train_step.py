@@ -5,7 +5,9 @@
 For the `reduced` and `paper` widths, in fp32 and in bf16 autocast, it measures frames per
 second and achieved FLOP/s of a full training step (forward, backward, Adam update) on
 synthetic videos, and the peak FLOP/s of a large square `torch.matmul` of the same dtype in
-the same run. The fraction of peak says how matmul-friendly the model's compute is.
+the same run. The fraction of peak says how matmul-friendly the model's compute is. The
+`paper`-width bf16 step is also measured with the forward under `torch.compile` (what
+`train --compile` runs), after its compilation.
 
 FLOPs are counted by `torch.utils.flop_counter.FlopCounterMode` (matmuls, convolutions)
 plus CPU fused attention, which that counter does not know: 4*B*H*Nq*Nk*Dh per forward
@@ -76,9 +78,9 @@ def _batch(cfg, videos: int, device):
     return frames, actions
 
 
-def _step(model, opt, frames, actions, device, precision, clip):
+def _step(model, opt, frames, actions, device, precision, clip, forward=None):
     with autocast(device, precision):
-        loss = model(frames, actions, 1.0)["loss"]
+        loss = (model if forward is None else forward)(frames, actions, 1.0)["loss"]
     opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(model.parameters(), clip, norm_type=float("inf"))
@@ -105,38 +107,53 @@ def run(presets=("reduced", "paper"), videos: dict | None = None, repeats: int =
     videos = {"reduced": None, "paper": 8, **(videos or {})}
     peaks = {p: matmul_peak(p, device=device) for p in DTYPES}
     rows = []
-    jobs = [(name, p) for name in presets for p in DTYPES]
-    for name, precision in progress(jobs, desc="bench train step"):
+    jobs = [(name, p, False) for name in presets for p in DTYPES]
+    jobs += [("paper", "bf16", True)] if "paper" in presets else []
+    for name, precision, compiled in progress(jobs, desc="bench train step"):
         cfg = get_preset(name)
         torch.manual_seed(0)
         model = DSlate(cfg).to(device).train()
         opt = build_optimizer(model, cfg)
         nv = videos.get(name) or cfg.train.batch_size
         frames, actions = _batch(cfg, nv, device)
-        _step(model, opt, frames, actions, device, precision, 1.0)        # warm-up
-        flops = step_flops(model, opt, frames, actions, device, precision)
+        forward = torch.compile(model) if compiled else model
+        for _ in range(2 if compiled else 1):                              # warm-up (+ compilation)
+            _step(model, opt, frames, actions, device, precision, 1.0, forward)
+        flops = step_flops(model, opt, frames, actions, device, precision)  # eager: same FLOPs
         times = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            _step(model, opt, frames, actions, device, precision, 1.0)
+            _step(model, opt, frames, actions, device, precision, 1.0, forward)
             times.append(time.perf_counter() - t0)
         t = statistics.median(times)
         n_frames = nv * cfg.train.window
         rows.append({
-            "preset": name, "precision": precision, "videos": nv, "frames_per_video": cfg.train.window,
+            "preset": name, "precision": precision, "compiled": compiled, "videos": nv, "frames_per_video": cfg.train.window,
             "step_seconds": t, "frames_per_second": n_frames / t, "step_flops": flops,
             "flops_per_second": flops / t, "matmul_peak_flops_per_second": peaks[precision],
             "fraction_of_peak": flops / t / peaks[precision],
         })
-    return {"device": str(device), "threads": torch.get_num_threads(), "versions": package_versions(),
+    return {"device": str(device), "cpu": _cpu_name(), "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "threads": torch.get_num_threads(), "versions": package_versions(),
             "matmul_peak_flops_per_second": peaks, "steps": rows}
+
+
+def _cpu_name() -> str:
+    """The CPU's model name: peaks differ across machines (AMX or not), so record it."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        import platform
+        return platform.processor() or "unknown"
 
 
 def format_table(result: dict) -> str:
     """The results as an aligned text table."""
-    lines = [f"{'preset':8} {'prec':5} {'frames/s':>9} {'GFLOP/s':>9} {'peak GFLOP/s':>13} {'of peak':>8}"]
+    lines = [f"{'preset':8} {'prec':12} {'frames/s':>9} {'GFLOP/s':>9} {'peak GFLOP/s':>13} {'of peak':>8}"]
     for r in result["steps"]:
-        lines.append(f"{r['preset']:8} {r['precision']:5} {r['frames_per_second']:9.1f} "
+        prec = r["precision"] + (" compiled" if r.get("compiled") else "")
+        lines.append(f"{r['preset']:8} {prec:12} {r['frames_per_second']:9.1f} "
                      f"{r['flops_per_second'] / 1e9:9.1f} {r['matmul_peak_flops_per_second'] / 1e9:13.1f} "
                      f"{100 * r['fraction_of_peak']:7.1f}%")
     return "\n".join(lines)
