@@ -18,7 +18,7 @@ import torch
 
 STATE_GRID = 16
 # slot-attention restarts per image for NCS (DSlate.infer): fg-ARI of the shipped model
-# 0.91 -> 0.97 (4 objects) and 0.88 -> 0.96 (7) at 4 restarts, 0.98 / 0.98 at 8 (notebook 03)
+# 0.84 -> 0.93 (4 objects) and 0.79 -> 0.86 (7) at 4 restarts (notebook 03)
 RESTARTS = 4
 
 
