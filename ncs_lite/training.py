@@ -10,7 +10,8 @@ What the loop guarantees:
   dropout) and the config, so `--resume` continues bit-for-bit like an uninterrupted run.
 * Schedules are functions of the step: gumbel tau (cosine, `tau_schedule`), the lr of
   slot attention / decoder / dynamics (linear warm-up, then constant or cosine), and the
-  dVAE's constant lr (no warm-up), as in Table 2.
+  dVAE's constant lr (no warm-up), as in Table 2. Optional polish steps follow the schedule
+  (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight).
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -79,14 +80,17 @@ def autocast(device: torch.device, precision: str):
 # ---------------------------------------------------------------------- schedules and data order
 def lr_at(step: int, cfg: DSlateConfig) -> float:
     """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
-    then constant ('none') or a cosine decay to 10% of the peak at the last step ('cosine')."""
+    then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
+    ('cosine'); then `polish_lr` for the polish steps."""
     t = cfg.train
+    if step >= t.main_steps():
+        return t.polish_lr
     step = step - t.dvae_warmup_steps          # this schedule starts after the dVAE warm-up
     if step < 0:
         return 0.0
     warm = min(1.0, (step + 1) / t.warmup_steps) if t.warmup_steps > 0 else 1.0
     if t.lr_decay == "cosine" and step >= t.warmup_steps:
-        total = t.total_steps() - t.dvae_warmup_steps
+        total = t.main_steps() - t.dvae_warmup_steps
         return cosine_anneal(step - t.warmup_steps, t.lr, 0.1 * t.lr, max(1, total - t.warmup_steps))
     return t.lr * warm
 
@@ -255,11 +259,13 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             frames = torch.stack([it["frames"] for it in items]).to(device, non_blocking=True)
             actions = torch.stack([it["actions"] for it in items]).to(device, non_blocking=True)
             tau, lr = tau_schedule(step, cfg.dvae), lr_at(step, cfg)
+            polishing = step >= cfg.train.main_steps()
             for g in opt.param_groups:
-                g["lr"] = cfg.dvae.lr if g.get("name") == "dvae" else lr
+                g["lr"] = (0.0 if polishing else cfg.dvae.lr) if g.get("name") == "dvae" else lr
 
             with autocast(device, precision):
-                out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps)
+                out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps,
+                              foreground_weight=cfg.train.polish_foreground_weight if polishing else None)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 _non_finite("loss", loss, step, out_path, last_saved)

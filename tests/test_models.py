@@ -224,8 +224,10 @@ def test_mixture_error_weights_pixels_far_from_the_median_colour():
     r = m.infer((x * 255).round().to(torch.uint8))
     x = (x * 255).round() / 255
     plain = m.mixture_error(x, r.slots, r.attention)
+    override = m.mixture_error(x, r.slots, r.attention, foreground_weight=5.0)   # the polish phase's way
     m.cfg.mixture.foreground_weight = 5.0
     weighted = m.mixture_error(x, r.slots, r.attention)
+    assert torch.equal(override, weighted)
     patches, _ = m.mixture(r.slots, r.attention)
     err = (patches - patchify(x, 64 // m.mixture.grid)).pow(2)
     far = torch.zeros(2, 64, 64, 3)

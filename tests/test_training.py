@@ -6,6 +6,7 @@ import torch
 
 from ncs_lite.config import get_preset, to_dict
 from ncs_lite.inference import load_dslate
+from ncs_lite.models.dslate import DSlate
 from ncs_lite.training import BatchOrder, add_subcommand, lr_at, train
 
 
@@ -63,6 +64,28 @@ def test_resume_equals_uninterrupted_run(buffer, tmp_path):
     assert not torch.equal(torch.load(first, weights_only=True)["model"][w], a["model"][w])
 
 
+def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tmp_path, monkeypatch):
+    cfg = ci()                                                # 4 scheduled steps, then 2 polish steps
+    main = cfg.train.main_steps()
+    assert cfg.train.total_steps() == main + cfg.train.polish_steps == main + 2
+    before = train(cfg, buffer, tmp_path / "m.pt", max_steps=main)
+    before = {k: v.clone() for k, v in torch.load(before, weights_only=True)["model"].items()}
+    weights, forward = [], DSlate.forward
+
+    def spy(self, *args, **kwargs):
+        weights.append(kwargs.get("foreground_weight"))
+        return forward(self, *args, **kwargs)
+
+    monkeypatch.setattr(DSlate, "forward", spy)
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    assert after["step"] == main + 2
+    assert weights == [cfg.train.polish_foreground_weight] * 2
+    assert all(torch.equal(before[k], after["model"][k]) for k in before if k.startswith("dvae."))
+    assert not torch.equal(before["slot_attn.mu"], after["model"]["slot_attn.mu"])
+    with pytest.raises(ValueError, match="polish_steps must be >= 0"):
+        ci(polish_steps=-1).validate()
+
+
 def test_nan_stops_and_keeps_last_good_checkpoint(buffer, tmp_path):
     out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
     ckpt = torch.load(out, weights_only=True)
@@ -101,7 +124,10 @@ def test_schedules_and_batch_order():
     assert lr_at(14_999, cfg) == pytest.approx(1e-4)
     assert lr_at(29_999, cfg) == lr_at(100_000, cfg) == pytest.approx(2e-4)
     red = get_preset("reduced")
-    assert lr_at(red.train.total_steps(), red) == pytest.approx(0.1 * red.train.lr)
+    main = red.train.main_steps()
+    assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
+    assert red.train.total_steps() == main + red.train.polish_steps == 3725
+    assert lr_at(main, red) == lr_at(red.train.total_steps() - 1, red) == red.train.polish_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))

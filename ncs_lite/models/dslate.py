@@ -154,11 +154,13 @@ class DSlate(nn.Module):
 
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
-                dvae_only: bool = False) -> dict:
+                dvae_only: bool = False, foreground_weight: float | None = None) -> dict:
         """videos (B, T, H, W, 3) uint8, actions (B, T-1, A) -> dict of scalar losses.
 
         dvae_only: compute the dVAE reconstruction alone (ce = ce_dyn = 0), for a warm-up
-        phase that gives the transformer stable tokens (see TrainConfig.dvae_warmup_steps)."""
+        phase that gives the transformer stable tokens (see TrainConfig.dvae_warmup_steps).
+        foreground_weight: overrides `mixture.foreground_weight` (the polish phase's, see
+        TrainConfig.polish_steps)."""
         videos = self._check_images(videos, 5, "videos")
         B, T = videos.shape[:2]
         if actions.shape != (B, T - 1, self.cfg.action_dim):
@@ -188,13 +190,14 @@ class DSlate(nn.Module):
         loss = mse + ce + ce_dyn
         mix = mse.new_zeros(())
         if self.mixture is not None:
-            mix = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1)).mean()
+            mix = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1), foreground_weight).mean()
             loss = loss + self.cfg.mixture.weight * mix
         return {"loss": loss, "mse": mse, "ce": ce, "ce_dyn": ce_dyn, "mix": mix}
 
-    def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+    def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor,
+                      foreground_weight: float | None = None) -> torch.Tensor:
         """The mixture decoder's reconstruction error per image (B,): x (B, H, W, 3) in [0, 1],
-        slots (B, K, D), attention (B, K, N').
+        slots (B, K, D), attention (B, K, N'); `foreground_weight` defaults to the config's.
 
         A summed squared error, with pixels whose colour is far (> FOREGROUND_DISTANCE in RGB)
         from the image's median colour weighted by `mixture.foreground_weight`. Why: a cube
@@ -207,7 +210,7 @@ class DSlate(nn.Module):
         p = self.cfg.image_size // self.mixture.grid
         patches, _ = self.mixture(slots, attention)                    # (B, N, p*p*3)
         err = (patches - patchify(x, p)).pow(2)                        # (B, N, p*p*3)
-        w = self.cfg.mixture.foreground_weight
+        w = self.cfg.mixture.foreground_weight if foreground_weight is None else foreground_weight
         if w != 1.0:
             background = x.flatten(1, 2).median(dim=1).values[:, None, None]   # (B, 1, 1, 3)
             far = (x - background).norm(dim=-1, keepdim=True) > FOREGROUND_DISTANCE  # (B, H, W, 1)
