@@ -223,7 +223,7 @@ def _reduced() -> DSlateConfig:
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0),
         mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0),
-        train=TrainConfig(epochs=10, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
+        train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250, polish_steps=600, polish_lr=2e-4,
                           polish_foreground_weight=20.0),

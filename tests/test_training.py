@@ -126,7 +126,7 @@ def test_schedules_and_batch_order():
     red = get_preset("reduced")
     main = red.train.main_steps()
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
-    assert red.train.total_steps() == main + red.train.polish_steps == 3725
+    assert red.train.total_steps() == main + red.train.polish_steps == 3100
     assert lr_at(main, red) == lr_at(red.train.total_steps() - 1, red) == red.train.polish_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
