@@ -57,10 +57,11 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
       `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
       `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
-      reused (unless `train_from_scratch`), an interrupted one is resumed.
+      reused (unless `train_from_scratch`), an interrupted one is resumed, and one trained
+      with another config (an older preset) is replaced.
     With preset="reduced", seed=0 this is the command that made the shipped checkpoint.
     """
-    from .config import get_preset
+    from .config import get_preset, to_dict
     from .data import cached_buffer
     from .training import train
 
@@ -72,7 +73,9 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     resume = False
     if path.exists() and not train_from_scratch:
         try:
-            step = int(read_checkpoint(path)["step"])
+            ckpt = read_checkpoint(path)
+            # trained with another config (e.g. an older preset): train afresh
+            step = int(ckpt["step"]) if ckpt["config"] == to_dict(cfg) else -1
         except ValueError:          # from another version of the code: train afresh
             step = -1
         if step >= cfg.train.total_steps():

@@ -165,3 +165,8 @@ def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
     assert path2 == path and path.stat().st_mtime_ns == stamp
     for k, v in model.state_dict().items():
         assert torch.equal(v, again.state_dict()[k]), k
+    ckpt = torch.load(path, weights_only=True)                # a cache left by an older preset
+    ckpt["config"]["train"]["lr"] = 0.5
+    torch.save(ckpt, path)
+    _, path3 = obtain_dslate("ci", seed=1)                    # retrained, not an error
+    assert path3 == path and torch.load(path, weights_only=True)["config"] == to_dict(model.cfg)

@@ -243,8 +243,8 @@ class DSlate(nn.Module):
         restarts > 1 runs slot attention from that many initial samples and keeps, per image,
         the one the model itself reconstructs best (`reconstruction_error`: no ground truth).
         Slot attention is a local search: now and then two slots share a cube and another
-        cube falls into the background slot, and a fresh start usually avoids it (measured on
-        the shipped model: fg-ARI 0.84 -> 0.93 at 4 objects with 4 restarts; notebook 03).
+        cube falls into the background slot, and a fresh start usually avoids it (notebook 03
+        measures fg-ARI with one start and with `ncs.perception.RESTARTS`).
         """
         if not isinstance(restarts, int) or restarts < 1:
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")

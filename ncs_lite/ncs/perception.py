@@ -17,8 +17,9 @@ import numpy as np
 import torch
 
 STATE_GRID = 16
-# slot-attention restarts per image for NCS (DSlate.infer): fg-ARI of the shipped model
-# 0.84 -> 0.93 (4 objects) and 0.79 -> 0.86 (7) at 4 restarts (notebook 03)
+# slot-attention restarts per image for NCS (DSlate.infer). Shipped model, 40 held-out images:
+# the slot that covers a cube binds to that cube's cell 88 % -> 100 % of the time at 4 objects
+# and 86 % -> 98 % at 7 (1 -> 8 restarts); the README has the NCS success this buys
 RESTARTS = 8
 
 
