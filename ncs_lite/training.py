@@ -190,9 +190,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
           precision: str | None = None, compile: bool = False) -> Path:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
-    Runs until `cfg.train.total_steps()` (epochs x episodes per epoch / batch) or, if
-    given, until global step `max_steps` (schedules still follow the full run, so a run
-    stopped with `max_steps` and resumed matches an uninterrupted one). Returns `out_path`.
+    Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
+    then `polish_steps`) or, if given, until global step `max_steps` (schedules still follow
+    the full run, so a run stopped with `max_steps` and resumed matches an uninterrupted one).
+    Returns `out_path`.
     `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
     `compile` runs the forward through `torch.compile` (inductor: fuses the elementwise work
     around the matmuls; the paper-width bf16 step measured 1.51x faster on a CPU, see
