@@ -6,8 +6,10 @@ import importlib
 import json
 import sys
 
+from .training import add_run_arguments
+
 # Modules that add their own subcommand through `add_subcommand(subparsers)`.
-COMMAND_MODULES = ("ncs_lite.training",)
+COMMAND_MODULES = ("ncs_lite.training", "ncs_lite.reproduce")
 
 
 def _collect(args):
@@ -25,32 +27,47 @@ def _bench(args):
 
 
 def _graph(args):
-    from .data import load_buffer
+    from .config import ncs_config, to_dict
+    from .data import load_buffer, manifest_hash
     from .inference import load_dslate
     from .ncs.graph import graph_from_buffer
     from .ncs.perception import DSlatePerception, OraclePerception
+    from .utils import provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
-    perception = OraclePerception() if args.oracle else DSlatePerception(load_dslate(args.checkpoint))
-    graph = graph_from_buffer(load_buffer(args.data), perception, args.clusters, seed=args.seed)
-    graph.info.update(data=str(args.data), checkpoint=args.checkpoint, oracle=args.oracle)
+    cfg = ncs_config(args.overrides, clusters=args.clusters, seed=args.seed)
+    made = provenance(args.out, args.allow_dirty)
+    perception = (OraclePerception() if args.oracle else
+                  DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
+                                   restarts=cfg.restarts))
+    graph = graph_from_buffer(load_buffer(args.data), perception, cfg.clusters, seed=cfg.seed)
+    graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
+                      checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
+                      checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
+                      oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides), **made)
     graph.save(args.out)
     print(json.dumps({"out": args.out, "nodes": graph.num_nodes, "edges": graph.num_edges,
                       "coverage": graph.info.get("coverage")}))
 
 
 def _evaluate(args):
+    from .config import ncs_config
     from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
     from .inference import load_dslate
     from .ncs.graph import TransitionGraph
+    from .utils import provenance
 
+    cfg = ncs_config(args.overrides)
+    if args.out:
+        provenance(args.out, args.allow_dirty)
     graph = TransitionGraph.load(args.graph) if args.graph else None
     model = load_dslate(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
                     action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
-    rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed), tasks, args.method)
+    rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed, ncs=cfg),
+                    tasks, args.method)
     if args.out:
         write_csv(rows, args.out)
     print(json.dumps(summarize(rows)[0]))
@@ -78,9 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", help="dSLATE checkpoint (learned entities)")
     p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
     p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
-    p.add_argument("--clusters", type=int, default=30, help="nodes (Table 4: 30 for block-rearrange)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--clusters", type=int, default=None,
+                   help="nodes (= --set ncs.clusters; Table 4: 30 for block-rearrange)")
+    p.add_argument("--seed", type=int, default=None, help="k-means seed (= --set ncs.seed)")
     p.add_argument("--out", required=True)
+    add_run_arguments(p)
     p.set_defaults(func=_graph)
 
     p = sub.add_parser("evaluate", help="evaluate a method on a seeded task set")
@@ -96,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--action-noise", type=float, default=0.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="tidy CSV, one row per episode")
+    add_run_arguments(p)
     p.set_defaults(func=_evaluate)
 
     for name in COMMAND_MODULES:

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import copy
 import math
+import typing
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 
 __all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "MixtureConfig",
-           "TrainConfig", "DSlateConfig", "PRESETS", "get_preset", "from_dict", "to_dict", "table2_rows"]
+           "TrainConfig", "DSlateConfig", "NCSConfig", "PRESETS", "get_preset", "from_dict", "to_dict",
+           "table2_rows", "apply_overrides", "parse_override", "ncs_config"]
 
 
 @dataclass
@@ -178,6 +180,24 @@ class DSlateConfig:
         return self
 
 
+@dataclass
+class NCSConfig:
+    """How NCS reads a model and builds its graph (`graph`, `evaluate`; Tables 3-4)."""
+    clusters: int = 30          # graph nodes, Table 4 (block-rearrange 30)
+    restarts: int = 8           # slot-attention restarts per image (DSlatePerception)
+    iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
+    extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
+    seed: int = 0               # k-means seed
+
+    def validate(self) -> "NCSConfig":
+        for name, low in (("clusters", 1), ("restarts", 1), ("iterations", 1), ("extra_slots", 0),
+                          ("seed", 0)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise ValueError(f"ncs.{name} must be an integer >= {low}, got {value!r}")
+        return self
+
+
 def _paper() -> DSlateConfig:
     return DSlateConfig(name="paper")
 
@@ -332,3 +352,72 @@ def table2_rows(cfg: DSlateConfig | None = None) -> list[tuple[str, object]]:
         ("Transformer dynamics: Heads", dyn.heads),
         ("Transformer dynamics: Hidden dim.", dyn.hidden),
     ]
+
+
+# ---------------------------------------------------------------------- command-line overrides
+def parse_override(text: str) -> tuple[str, str]:
+    """'section.field=value' -> ('section.field', 'value'), or ValueError naming the text."""
+    key, sep, value = str(text).partition("=")
+    if not sep or not key.strip():
+        raise ValueError(f"--set takes section.field=value (e.g. train.lr=1e-3), got {text!r}")
+    return key.strip(), value.strip()
+
+
+def _convert(raw: str, kind, where: str):
+    """The text of an override as the field's type (int, float, str, bool)."""
+    kind = {"int": int, "float": float, "str": str, "bool": bool}.get(kind, kind)
+    try:
+        if kind is bool:
+            if raw.lower() not in ("true", "false", "1", "0"):
+                raise ValueError
+            return raw.lower() in ("true", "1")
+        if kind is int:
+            return int(raw)
+        if kind is float:
+            value = float(raw)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+        return str(raw)
+    except ValueError:
+        raise ValueError(f"--set {where}={raw}: expected a finite {kind.__name__}, got {raw!r}") from None
+
+
+def apply_overrides(cfg, overrides) -> object:
+    """A copy of the dataclass `cfg` with `overrides` (['train.lr=1e-3', ...]) applied and
+    validated; ValueError names an unknown field with the allowed ones, or a bad value.
+
+    Dotted keys walk nested dataclasses (`train.lr` on a DSlateConfig, `clusters` on an
+    NCSConfig). Properties (`slots.slot_dim`) cannot be set: set their parts instead.
+    """
+    cfg = copy.deepcopy(cfg)
+    for text in overrides or ():
+        key, raw = parse_override(text)
+        *parents, leaf = key.split(".")
+        node, path = cfg, []
+        for part in parents:
+            sub = {f.name: f for f in fields(node)}
+            if part not in sub or not is_dataclass(getattr(node, part)):
+                sections = sorted(n for n in sub if is_dataclass(getattr(node, n)))
+                raise ValueError(f"--set {key}: unknown config section {'.'.join(path + [part])!r}; "
+                                 f"sections: {', '.join(sections) or 'none'}")
+            node, path = getattr(node, part), path + [part]
+        names = {f.name: f for f in fields(node) if not is_dataclass(getattr(node, f.name))}
+        if leaf not in names:
+            where = ".".join(path) or type(node).__name__
+            raise ValueError(f"--set {key}: unknown field {leaf!r} of {where}; allowed fields: "
+                             f"{', '.join(sorted(names))}")
+        hints = typing.get_type_hints(type(node))
+        setattr(node, leaf, _convert(raw, hints.get(leaf, type(getattr(node, leaf))), key))
+    return cfg.validate()
+
+
+def ncs_config(overrides=(), **fields_) -> NCSConfig:
+    """An NCSConfig from keyword fields and `ncs.FIELD=VALUE` overrides (`graph`, `evaluate`)."""
+    for text in overrides or ():
+        key, _ = parse_override(text)
+        if not key.startswith("ncs."):
+            allowed = ", ".join(f"ncs.{f.name}" for f in fields(NCSConfig))
+            raise ValueError(f"--set {key}: this command takes NCS fields only; allowed fields: {allowed}")
+    cfg = NCSConfig(**{k: v for k, v in fields_.items() if v is not None})
+    return apply_overrides(cfg, [str(o)[len("ncs."):] for o in overrides or ()])

@@ -122,10 +122,11 @@ def write_csv(rows: list[dict], path: str | Path) -> Path:
 METHODS = ("ncs", "ncs-oracle", "random")
 
 
-def agent_factory(method: str, graph=None, model=None, seed: int = 0):
+def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
     """A function env -> agent for `method` (see METHODS); NCS methods need a graph, `ncs`
-    also a dSLATE model. `ncs` uses one slot per object plus one for the background when
-    the scene holds more objects than the model was trained with."""
+    also a dSLATE model. `ncs` (an `NCSConfig`, default the paper's reading) sets how the
+    learned agent reads the model: restarts, iterations, and `extra_slots` slots beyond one
+    per object (the background's) when the scene holds more objects than the model's K."""
     from .baselines import RandomAgent
     from .ncs.perception import DSlatePerception, OraclePerception
     from .ncs.policy import NCSAgent
@@ -141,8 +142,14 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0):
     if model is None:
         raise ValueError("method 'ncs' needs a dSLATE checkpoint (--checkpoint)")
 
+    from .config import NCSConfig
+
+    ncs = ncs or NCSConfig()
+
     def make_ncs(env):
-        slots = max(model.cfg.slots.num_slots, env.config.num_objects + 1)
-        return NCSAgent(graph, DSlatePerception(model, num_slots=slots), env.action_space, seed)
+        slots = max(model.cfg.slots.num_slots, env.config.num_objects + ncs.extra_slots)
+        perception = DSlatePerception(model, iterations=ncs.iterations, num_slots=slots,
+                                      restarts=ncs.restarts)
+        return NCSAgent(graph, perception, env.action_space, seed)
 
     return make_ncs

@@ -57,11 +57,11 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
       `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
       `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
-      reused (unless `train_from_scratch`), an interrupted one is resumed, and one trained
-      with another config (an older preset) is replaced.
+      reused (unless `train_from_scratch`), an interrupted one is resumed, and one made with
+      another config, env, buffer or training code is retrained; each decision is printed.
     With preset="reduced", seed=0 this is the command that made the shipped checkpoint.
     """
-    from .config import get_preset, to_dict
+    from .config import get_preset
     from .data import cached_buffer
     from .training import train
 
@@ -70,17 +70,43 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     cfg = get_preset(preset)
     cfg.train.seed = int(seed)
     path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
-    resume = False
-    if path.exists() and not train_from_scratch:
-        try:
-            ckpt = read_checkpoint(path)
-            # trained with another config (e.g. an older preset): train afresh
-            step = int(ckpt["step"]) if ckpt["config"] == to_dict(cfg) else -1
-        except ValueError:          # from another version of the code: train afresh
-            step = -1
-        if step >= cfg.train.total_steps():
-            return load_dslate(path, device), path
-        resume = step >= 0
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
-    train(cfg, data, path, resume=resume, device=device, env=env)
+    resume = force = False
+    if path.exists() and not train_from_scratch:
+        why = _unfit(path, cfg, env, data)
+        if why is None:
+            step = int(read_checkpoint(path)["step"])
+            if step >= cfg.train.total_steps():
+                return load_dslate(path, device), path
+            resume = True
+            print(f"obtain_dslate: resuming {path} at step {step} of {cfg.train.total_steps()}")
+        else:
+            force = True
+            print(f"obtain_dslate: retraining {path} from scratch: {why}")
+    elif path.exists():
+        force = True
+        print(f"obtain_dslate: retraining {path} from scratch (train_from_scratch=True)")
+    train(cfg, data, path, resume=resume, force=force, device=device, env=env)
     return load_dslate(path, device), path
+
+
+def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
+    """Why the cached checkpoint at `path` cannot be reused or resumed, or None."""
+    from .config import config_diff, to_dict
+    from .data import manifest_hash
+    from .training import training_code_version
+
+    try:
+        ckpt = read_checkpoint(path)
+    except ValueError as e:
+        return f"it cannot be read ({e})"
+    diff = config_diff(ckpt["config"], to_dict(cfg))
+    if diff:
+        return f"it was trained with another config ({'; '.join(diff[:3])})"
+    if ckpt.get("env") != env:
+        return f"it was trained on {ckpt.get('env')!r}, not {env!r}"
+    if (ckpt.get("data") or {}).get("manifest_sha256") != manifest_hash(data):
+        return "it was trained on another buffer (manifest hash differs)"
+    if (ckpt.get("code_version") or {}).get("training_code") != training_code_version():
+        return "the training code changed since it was trained"
+    return None

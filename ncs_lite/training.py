@@ -21,11 +21,21 @@ What the loop guarantees:
 * Checkpoints contain only tensors, dicts, lists and primitives, so they load with
   `torch.load(path, weights_only=True)`; a checkpoint from other code or another config
   is refused with a ValueError naming the difference.
+* Nothing is lost: `--resume` refuses a checkpoint of another config, precision, env,
+  buffer (manifest hash) or training code (`training_code_version`), naming what differs;
+  a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
+  and loss log first, so the two never mix); a lock file (`<out>.lock`) makes two runs on
+  one `out` refuse each other. Each checkpoint records the commit (`provenance`: writing
+  into `ncs_lite/assets/` from a dirty tree is refused), the `--set` overrides, and the
+  buffer's path (relative to the repo) and manifest hash.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import fcntl
 import math
+import os
 import time
 from pathlib import Path
 
@@ -35,10 +45,15 @@ import torch
 from .config import DSlateConfig, config_diff, get_preset, to_dict
 from .models.dslate import MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
-from .utils import atomic_torch_save, git_commit, package_versions, progress, seed_everything
+from .utils import (atomic_torch_save, package_versions, progress, provenance, relative_to_repo,
+                    seed_everything, source_hash)
 
 __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
-           "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast"]
+           "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",
+           "training_code_version", "run_lock"]
+
+# The sources whose changes can change a training run (model, loop, config, data, rendering).
+TRAINING_CODE = ("models", "training.py", "config.py", "data", "envs")
 
 CHECKPOINT_FORMAT = 1
 CSV_FIELDS = ["step", "loss", "mse", "ce", "ce_dyn", "mix", "tau", "lr", "grad_norm", "seconds"]
@@ -160,17 +175,59 @@ def _set_rng_state(state: dict, device: torch.device) -> None:
         torch.cuda.set_rng_state(state["cuda"].cpu(), device)
 
 
-def code_version() -> dict:
-    """The kit's commit and package versions, stored in every checkpoint."""
-    return {"commit": git_commit(), **package_versions()}
+def training_code_version() -> str:
+    """Hash of the sources that shape a training run (`TRAINING_CODE`): `--resume` and the
+    checkpoint cache of `obtain_dslate` are keyed by it."""
+    return source_hash(*TRAINING_CODE)
+
+
+def code_version(out_path, allow_dirty: bool = False) -> dict:
+    """Commit (refusing a dirty tree for `ncs_lite/assets/`), training-code hash and package
+    versions, stored in every checkpoint."""
+    return {**provenance(out_path, allow_dirty), "training_code": training_code_version(),
+            **package_versions()}
+
+
+@contextlib.contextmanager
+def run_lock(out_path: Path):
+    """Hold `<out>.lock` for a run: a second run on the same `out` fails at once, naming it."""
+    lock = Path(str(out_path) + ".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            other = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            raise ValueError(f"another training run (pid {other}) is writing {out_path}; wait for it "
+                             "or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+        with contextlib.suppress(OSError):
+            lock.unlink()
+    finally:
+        os.close(fd)
+
+
+def _resume_differences(ckpt: dict, cfg, precision: str, env: str, data_meta: dict) -> list[str]:
+    """What makes a checkpoint unfit to resume bit-for-bit: ['precision: fp32 != bf16', ...]."""
+    diff = config_diff(ckpt["config"], to_dict(cfg))
+    old_data = ckpt.get("data") or {}
+    pairs = [("precision", ckpt.get("precision"), precision), ("env", ckpt.get("env"), env),
+             ("buffer manifest", old_data.get("manifest_sha256"), data_meta["manifest_sha256"]),
+             ("training code", (ckpt.get("code_version") or {}).get("training_code"),
+              training_code_version())]
+    return diff + [f"{name}: {a!r} != {b!r}" for name, a, b in pairs if a != b]
 
 
 def _save(path, model, opt, cfg, step, device, precision, env, data_meta, seconds, last,
-          version) -> None:
+          version, overrides) -> None:
     atomic_torch_save({
         "format": CHECKPOINT_FORMAT,
         "model_version": MODEL_VERSION,
         "code_version": version,
+        "overrides": list(overrides),
         "config": to_dict(cfg),
         "env": env,
         "data": data_meta,
@@ -187,7 +244,8 @@ def _save(path, model, opt, cfg, step, device, precision, env, data_meta, second
 # ---------------------------------------------------------------------- the loop
 def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume: bool = False,
           device=None, max_steps: int | None = None, env: str = "block-rearrange",
-          precision: str | None = None, compile: bool = False) -> Path:
+          precision: str | None = None, compile: bool = False, force: bool = False,
+          overrides: list[str] | tuple = (), allow_dirty: bool = False) -> Path:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
     Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
@@ -198,8 +256,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     `compile` runs the forward through `torch.compile` (inductor: fuses the elementwise work
     around the matmuls; the paper-width bf16 step measured 1.51x faster on a CPU, see
     `bench train`). The first steps pay the compilation; checkpoints are unchanged.
+    `force` starts afresh over an existing run at `out_path`; `overrides` (the `--set`
+    strings that made `cfg`) are recorded in the checkpoint.
     """
-    from .data import EpisodeDataset, load_manifest
+    from .data import EpisodeDataset, load_manifest, manifest_hash
 
     cfg.validate()
     out_path = Path(out_path)
@@ -211,26 +271,42 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
 
     manifest = load_manifest(data_dir)
-    data_meta = {"dir": str(data_dir), "episodes": int(manifest["episodes"]),
-                 "seed": int(manifest["seed"])}
-    dataset = EpisodeDataset(data_dir, window=cfg.train.window)
-    order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
+    data_meta = {"dir": relative_to_repo(data_dir), "episodes": int(manifest["episodes"]),
+                 "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
+    csv_path = out_path.with_suffix(".csv")
+    version = code_version(out_path, allow_dirty)
+    with run_lock(out_path):
+        if resume:
+            if not out_path.exists():
+                raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
+            ckpt = read_checkpoint(out_path, map_location=device)
+            diff = _resume_differences(ckpt, cfg, precision, env, data_meta)
+            if diff:
+                raise ValueError(f"cannot resume {out_path}: it differs from this run (checkpoint vs "
+                                 f"requested): {'; '.join(diff)}. Use the same settings, another --out, "
+                                 "or --force to start afresh")
+        elif out_path.exists() or csv_path.exists():
+            if not force:
+                what = out_path if out_path.exists() else csv_path
+                raise ValueError(f"{what} already exists: pass --resume to continue that run or "
+                                 "--force to delete it and start afresh")
+            for p in (out_path, csv_path):
+                p.unlink(missing_ok=True)
+        dataset = EpisodeDataset(data_dir, window=cfg.train.window)
+        order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
+        return _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env,
+                     data_meta, version, overrides, stop, ckpt if resume else None)
 
+
+def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env, data_meta,
+          version, overrides, stop, ckpt) -> Path:
     seed_everything(cfg.train.seed)
     model = DSlate(cfg).to(device)
     forward = torch.compile(model) if compile else model          # same parameters
     opt = build_optimizer(model, cfg)
     step, seconds = 0, 0.0
-    csv_path = out_path.with_suffix(".csv")
-
+    resume = ckpt is not None
     if resume:
-        if not out_path.exists():
-            raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
-        ckpt = read_checkpoint(out_path, map_location=device)
-        diff = config_diff(ckpt["config"], to_dict(cfg))
-        if diff:
-            raise ValueError(f"checkpoint {out_path} was trained with another config "
-                             f"(checkpoint vs requested): {'; '.join(diff)}")
         try:
             model.load_state_dict(ckpt["model"])
         except RuntimeError as e:
@@ -244,7 +320,6 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
         with open(csv_path, "w", newline="") as f:
             csv.writer(f).writerow(CSV_FIELDS)
 
-    version = code_version()
     model.train()
     params = list(model.parameters())
     last_saved = step if resume else None
@@ -291,7 +366,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             if step % cfg.train.checkpoint_every == 0 or step == stop:
                 csv_file.flush()
                 _save(out_path, model, opt, cfg, step, device, precision, env, data_meta, seconds,
-                      {k: round(v, 4) for k, v in vals.items()}, version)
+                      {k: round(v, 4) for k, v in vals.items()}, version, overrides)
                 last_saved = step
     finally:
         csv_file.close()
@@ -339,18 +414,39 @@ def add_subcommand(subparsers) -> None:
                    help="torch.compile the forward (faster steps after a compilation pause)")
     p.add_argument("--seed", type=int, default=None,
                    help="override the preset's train.seed (initial weights and batch order)")
+    add_run_arguments(p)
+    p.add_argument("--force", action="store_true",
+                   help="delete an existing run at --out (checkpoint and loss log) and start afresh")
     p.set_defaults(func=_main)
 
 
-def _main(args) -> None:
+def add_run_arguments(p) -> None:
+    """`--set` and `--allow-dirty`, shared by every command that takes a config."""
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                   help="override one config field, e.g. --set train.lr=1e-3 (repeatable)")
+    p.add_argument("--allow-dirty", action="store_true",
+                   help="write into figures/ or ncs_lite/assets/ from a tree with uncommitted changes "
+                        "(recorded as dirty)")
+
+
+def config_from_args(args) -> DSlateConfig:
+    """The preset of `args.preset` with `--seed` and `--set` applied."""
+    from .config import apply_overrides
+
     cfg = get_preset(args.preset)
-    if args.seed is not None:
+    if getattr(args, "seed", None) is not None:
         if args.seed < 0:
             raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
         cfg.train.seed = args.seed
+    return apply_overrides(cfg, args.overrides)
+
+
+def _main(args) -> None:
+    cfg = config_from_args(args)
     t0 = time.perf_counter()
     path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
-                 max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile)
+                 max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile,
+                 force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty)
     ckpt = read_checkpoint(path)
     print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
           f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "

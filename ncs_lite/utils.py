@@ -98,16 +98,89 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=REPO_DIR, capture_output=True, text=True, timeout=5,
+                          check=True).stdout
+
+
+def dirty_files() -> list[str]:
+    """Tracked files with uncommitted changes ([] outside git)."""
+    try:
+        return [line[3:] for line in _git("status", "--porcelain", "--untracked-files=no").splitlines()]
+    except (OSError, subprocess.SubprocessError):
+        return []
+
+
 def git_commit() -> str:
     """The kit's commit (with '+dirty' for uncommitted changes), or 'unknown' outside git."""
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_DIR,
-                             capture_output=True, text=True, timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=REPO_DIR, capture_output=True, text=True, timeout=5).stdout
-        return sha + ("+dirty" if dirty.strip() else "")
+        sha = _git("rev-parse", "--short", "HEAD").strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+    return sha + ("+dirty" if dirty_files() else "")
+
+
+# Where committed results live: writing there from a dirty tree would give them a provenance
+# that names no commit.
+def committed_result_dirs() -> tuple[Path, ...]:
+    return (REPO_DIR / "figures", PACKAGE_DIR / "assets")
+
+
+def allow_dirty_from_env() -> bool:
+    """NCS_LITE_ALLOW_DIRTY=1 lets results be written into figures/ or assets/ from a dirty tree."""
+    return os.environ.get("NCS_LITE_ALLOW_DIRTY", "0") not in ("0", "", "false", "no")
+
+
+def provenance(target: str | os.PathLike, allow_dirty: bool = False) -> dict:
+    """The commit a result written to `target` comes from: {"commit", "dirty"}.
+
+    Refuses (ValueError naming the changed files) to write into the repo's `figures/` or
+    `ncs_lite/assets/` from a tree with uncommitted changes, unless `allow_dirty` (or
+    NCS_LITE_ALLOW_DIRTY=1); a result written anyway records `"dirty": true`.
+    """
+    target = Path(target).resolve()
+    changed = dirty_files()
+    guarded = any(target == d or d in target.parents for d in committed_result_dirs())
+    if changed and guarded and not (allow_dirty or allow_dirty_from_env()):
+        shown = ", ".join(changed[:5]) + (f" and {len(changed) - 5} more" if len(changed) > 5 else "")
+        raise ValueError(f"refusing to write {relative_to_repo(target)} from a tree with uncommitted "
+                         f"changes ({shown}): commit first so the result names its commit, or pass "
+                         "--allow-dirty (NCS_LITE_ALLOW_DIRTY=1 for notebooks)")
+    return {"commit": git_commit(), "dirty": bool(changed)}
+
+
+def relative_to_repo(path: str | os.PathLike) -> str:
+    """`path` relative to the repo when inside it (so provenance does not name this machine)."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(REPO_DIR))
+    except ValueError:
+        return str(path)
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def source_hash(*parts: str) -> str:
+    """sha256 over the kit's Python sources under `parts` (files or folders of ncs_lite/):
+    the code version that caches and `--resume` are keyed by."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for part in sorted(parts):
+        root = PACKAGE_DIR / part
+        files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
+        for f in files:
+            h.update(str(f.relative_to(PACKAGE_DIR)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def figures_dir() -> Path:

@@ -99,7 +99,7 @@ def test_nan_stops_and_keeps_last_good_checkpoint(buffer, tmp_path):
 
 def test_mismatched_checkpoint_errors(buffer, tmp_path):
     out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
-    with pytest.raises(ValueError, match=r"another config.*train.lr: 0.001 != 0.002"):
+    with pytest.raises(ValueError, match=r"differs from this run.*train.lr: 0.001 != 0.002"):
         train(ci(lr=2e-3), buffer, out, resume=True, max_steps=4)
     ckpt = torch.load(out, weights_only=True)
     ckpt["model_version"] = "dslate-0"

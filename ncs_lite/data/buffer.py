@@ -105,6 +105,14 @@ def load_manifest(directory: str | Path) -> dict:
     return json.loads(path.read_text())
 
 
+def manifest_hash(directory: str | Path) -> str:
+    """sha256 of a buffer's manifest (canonical JSON): names the buffer a model was trained on."""
+    import hashlib
+
+    text = json.dumps(load_manifest(directory), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
     """All episodes of a finished buffer as arrays (E = episodes, k = cubes):
 
