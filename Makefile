@@ -6,7 +6,12 @@ PRESET   ?= reduced
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9][0-9]_*.ipynb))
 BUILD    := build
 
-.PHONY: setup reproduce test bench clean
+SEEDS    ?= 0 1 2
+# notebooks run on one thread: their numbers are then bit-identical on any machine and load
+# (another thread count changes torch's floating-point order, and with it a result or two)
+THREADS  ?= 1
+
+.PHONY: setup reproduce test bench seeds clusters clean
 
 setup: $(STAMP)
 
@@ -20,11 +25,16 @@ $(STAMP): environment.txt pyproject.toml
 	touch $@
 
 # Main job: every notebook through papermill at the `reduced` preset; figures -> figures/.
+# Committed figures name a clean commit, so a tree with uncommitted changes is refused
+# (ALLOW_DIRTY=1 writes anyway and records "dirty": true in each figure's JSON).
 reproduce: $(STAMP)
+	@if [ "$(ALLOW_DIRTY)" != 1 ] && [ -n "$$(git status --porcelain --untracked-files=no -- . ":!figures" 2>/dev/null)" ]; then \
+	  echo "make reproduce: the tree has uncommitted changes; commit first (figures record their commit) or pass ALLOW_DIRTY=1"; \
+	  exit 2; fi
 	mkdir -p $(BUILD)/notebooks
 	for nb in $(NOTEBOOKS); do \
 	  echo "== $$nb (preset=$(PRESET))"; \
-	  $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
+	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
 	    $$nb $(BUILD)/notebooks/$$(basename $$nb) || exit 1; \
 	done
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"
@@ -40,6 +50,13 @@ bench: $(STAMP)
 	for b in envs train kmeans ncs; do \
 	  $(PY) -m ncs_lite bench $$b --out $(BUILD)/bench/$$b.json || exit 1; \
 	done
+
+# README tables that need more than the notebooks (hours on a CPU; resumable).
+seeds: $(STAMP)
+	$(PY) -m ncs_lite reproduce seeds --preset $(PRESET) --seeds $(SEEDS)
+
+clusters: $(STAMP)
+	$(PY) -m ncs_lite reproduce clusters
 
 clean:
 	rm -rf $(BUILD)

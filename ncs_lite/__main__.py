@@ -28,10 +28,10 @@ def _bench(args):
 
 def _graph(args):
     from .config import ncs_config, to_dict
-    from .data import load_buffer, manifest_hash
+    from .data import manifest_hash
     from .inference import load_dslate
-    from .ncs.graph import graph_from_buffer
-    from .ncs.perception import DSlatePerception, OraclePerception
+    from .ncs.graph import build_graph
+    from .ncs.perception import DSlatePerception, OraclePerception, buffer_transitions
     from .utils import provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
@@ -41,7 +41,9 @@ def _graph(args):
     perception = (OraclePerception() if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
                                    restarts=cfg.restarts))
-    graph = graph_from_buffer(load_buffer(args.data), perception, cfg.clusters, seed=cfg.seed)
+    states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
+    graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, seed=cfg.seed,
+                        true_entity=moved)
     graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,

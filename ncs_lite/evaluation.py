@@ -122,13 +122,26 @@ def write_csv(rows: list[dict], path: str | Path) -> Path:
 METHODS = ("ncs", "ncs-oracle", "random")
 
 
+def learned_perception(model, num_objects: int, ncs=None):
+    """The perception the `ncs` agent reads a scene of `num_objects` objects with: one slot
+    per object plus `ncs.extra_slots` (the background's), at least the model's K, and the
+    restarts and iterations of `ncs` (an `NCSConfig`, default the paper's reading)."""
+    from .config import NCSConfig
+    from .ncs.perception import DSlatePerception
+
+    ncs = ncs or NCSConfig()
+    slots = max(model.cfg.slots.num_slots, num_objects + ncs.extra_slots)
+    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots, restarts=ncs.restarts)
+
+
 def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
     """A function env -> agent for `method` (see METHODS); NCS methods need a graph, `ncs`
     also a dSLATE model. `ncs` (an `NCSConfig`, default the paper's reading) sets how the
     learned agent reads the model: restarts, iterations, and `extra_slots` slots beyond one
-    per object (the background's) when the scene holds more objects than the model's K."""
+    per object (the background's) when the scene holds more objects than the model's K
+    (`learned_perception`)."""
     from .baselines import RandomAgent
-    from .ncs.perception import DSlatePerception, OraclePerception
+    from .ncs.perception import OraclePerception
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
@@ -142,14 +155,74 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
     if model is None:
         raise ValueError("method 'ncs' needs a dSLATE checkpoint (--checkpoint)")
 
-    from .config import NCSConfig
-
-    ncs = ncs or NCSConfig()
-
     def make_ncs(env):
-        slots = max(model.cfg.slots.num_slots, env.config.num_objects + ncs.extra_slots)
-        perception = DSlatePerception(model, iterations=ncs.iterations, num_slots=slots,
-                                      restarts=ncs.restarts)
-        return NCSAgent(graph, perception, env.action_space, seed)
+        return NCSAgent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed)
 
     return make_ncs
+
+
+# The code an evaluation's rows depend on (a cache key): the envs, the model, the agents and
+# this harness. Any edit there recomputes the cached rows.
+EVALUATION_CODE = ("envs", "models", "ncs", "baselines", "evaluation.py", "config.py")
+
+
+def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed: int = 0, ncs=None,
+                    label: str | None = None, cache: bool = True) -> list[dict]:
+    """`evaluate(agent_factory(method, graph, model, seed, ncs), tasks, label or method)`.
+
+    With `cache` the rows are loaded from the kit's cache (`ncs_lite.cache`) when an earlier
+    run stored them under the same method, task set, seed, NCS settings, graph and model
+    (their digests) and code (EVALUATION_CODE); otherwise they are computed and stored.
+    """
+    from .config import NCSConfig
+
+    make = agent_factory(method, graph=graph, model=model, seed=seed, ncs=ncs)
+    name = label or method
+    if not cache:
+        return evaluate(make, tasks, name)
+    from .cache import cached, code_digest, digest
+
+    key = {"method": method, "label": name, "tasks": asdict(tasks), "seed": seed,
+           "ncs": asdict(ncs or NCSConfig()) if method == "ncs" else None,
+           "graph": digest(graph) if method != "random" else None,
+           "model": digest(model) if method == "ncs" else None,
+           "code": code_digest(*EVALUATION_CODE)}
+    return cached("evaluation", lambda: evaluate(make, tasks, name), **key)
+
+
+def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -> dict[str, np.ndarray]:
+    """Which objects the `ncs` agent's perception fails to give a slot of their own, in the
+    start and goal image of every task of `tasks` (E tasks, k objects):
+
+      absorbed (E, 2, k) bool: the object is in the floor's slot (`metrics.slot_assignment`)
+      shared   (E, 2, k) bool: it shares its slot with another object
+    (image 0 = start, 1 = goal). The masks are the ones the agent acts on at reset and at
+    its first step: the same perception (`learned_perception`), seeded, so the same
+    restart. Ground truth is read here to *measure* only. Cached like `evaluate_method`.
+    """
+    from .config import NCSConfig
+    from .metrics import slot_assignment
+
+    perception = learned_perception(model, tasks.num_objects, ncs)
+
+    def compute():
+        env = tasks.make_env()
+        absorbed, shared = [], []
+        try:
+            for i in progress(range(tasks.episodes), desc=f"segmentation k={tasks.num_objects}", leave=False):
+                obs, info = env.reset(seed=task_seed(tasks.seed, i))
+                masks = np.stack([perception.current(obs).masks.numpy(), perception.goal(obs).masks.numpy()])
+                owner, background = slot_assignment(masks, np.stack([info["masks"], info["goal_masks"]]))
+                absorbed.append((owner >= 0) & (owner == background[:, None]))              # (2, k)
+                same = (owner[:, :, None] == owner[:, None, :]) & (owner[:, :, None] >= 0)  # (2, k, k)
+                shared.append((same.sum(-1) > 1) & ~absorbed[-1])
+        finally:
+            env.close()
+        return {"absorbed": np.stack(absorbed), "shared": np.stack(shared)}
+
+    if not cache:
+        return compute()
+    from .cache import cached, code_digest, digest
+
+    return cached("segmentation", compute, tasks=asdict(tasks), model=digest(model),
+                  ncs=asdict(ncs or NCSConfig()), code=code_digest(*EVALUATION_CODE, "metrics.py"))

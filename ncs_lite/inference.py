@@ -45,7 +45,7 @@ def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
         raise ValueError(f"checkpoint {path} does not match this code's dSLATE "
                          f"(preset {cfg.name!r}): {e}") from e
     model.checkpoint_info = {k: ckpt.get(k) for k in ("step", "env", "data", "precision", "seconds",
-                                                      "last", "code_version")}
+                                                      "last", "code_version", "overrides")}
     return model.to(device).eval()
 
 

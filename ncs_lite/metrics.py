@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background"]
+__all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
+           "lost_in_reconstruction"]
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -68,6 +69,39 @@ def foreground_ari(pred_masks, true_masks) -> np.ndarray:
     return out
 
 
+def _as_numpy(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+
+def slot_assignment(pred_masks, true_masks) -> tuple[np.ndarray, np.ndarray]:
+    """Which slot holds each object, and which slot holds the floor.
+
+    pred_masks (B, K, H, W) soft or hard, true_masks (B, k, H, W) bool. Every pixel goes to
+    the slot that wins it (argmax over K). Returns
+      owner (B, k) int: the slot winning most of object o's pixels (-1: o has no pixels);
+      background (B,) int: the slot winning most pixels outside every object (-1: none).
+    A figure titles slot j with the objects whose owner is j (and "floor" when background
+    is j); `absorbed_by_background` is owner == background.
+    """
+    pred, true = _as_numpy(pred_masks), _as_numpy(true_masks)
+    if pred.ndim != 4 or true.ndim != 4 or pred.shape[0] != true.shape[0] or pred.shape[2:] != true.shape[2:]:
+        raise ValueError(f"masks must have shapes (B, K, H, W) and (B, k, H, W) with equal B, H, W, "
+                         f"got predicted {pred.shape} and ground truth {true.shape}")
+    true = true.astype(bool)
+    K = pred.shape[1]
+    won = pred.argmax(axis=1)                                           # (B, H, W)
+    owner = np.full(true.shape[:2], -1, np.int64)                       # (B, k)
+    background = np.full(true.shape[0], -1, np.int64)                   # (B,)
+    for b in range(len(won)):
+        floor = ~true[b].any(0)
+        if floor.any():
+            background[b] = np.bincount(won[b][floor], minlength=K).argmax()
+        for o in range(true.shape[1]):
+            if true[b, o].any():
+                owner[b, o] = np.bincount(won[b][true[b, o]], minlength=K).argmax()
+    return owner, background
+
+
 def absorbed_by_background(pred_masks, true_masks) -> np.ndarray:
     """Which objects have no slot of their own, (B, k) bool.
 
@@ -76,20 +110,44 @@ def absorbed_by_background(pred_masks, true_masks) -> np.ndarray:
     the same object: one cube merged with the floor costs only its own pixels' pairs, yet
     NCS can neither see nor move that cube (notebooks 03 and 06).
     """
-    pred = pred_masks.detach().cpu().numpy() if isinstance(pred_masks, torch.Tensor) else np.asarray(pred_masks)
-    true = np.asarray(true_masks.cpu() if isinstance(true_masks, torch.Tensor) else true_masks)
-    if pred.ndim != 4 or true.ndim != 4 or pred.shape[0] != true.shape[0] or pred.shape[2:] != true.shape[2:]:
-        raise ValueError(f"masks must have shapes (B, K, H, W) and (B, k, H, W) with equal B, H, W, "
-                         f"got predicted {pred.shape} and ground truth {true.shape}")
-    K = pred.shape[1]
-    won = pred.argmax(axis=1)                                           # (B, H, W)
+    owner, background = slot_assignment(pred_masks, true_masks)
+    return (owner >= 0) & (owner == background[:, None])
+
+
+def lost_in_reconstruction(reconstructions, images, true_masks) -> np.ndarray:
+    """Which objects a reconstruction paints as background, (B, k) bool.
+
+    reconstructions and images (B, H, W, 3), uint8 in 0..255 or float in [0, 1] (each
+    judged on its own: uint8 is divided by 255); true_masks (B, k, H, W) bool. Object o is
+    lost when the reconstruction's mean colour over o's pixels is closer to the image's
+    background colour (the mean of the true image outside every object) than to o's own
+    mean colour in the true image. A per-pixel error cannot say this: a small cube painted
+    as floor costs few pixels (notebook 02: the dVAE paints green cubes as floor).
+    Objects without pixels are never lost.
+    """
+    def unit(x):
+        x = _as_numpy(x)
+        return x.astype(np.float64) / 255.0 if x.dtype == np.uint8 else x.astype(np.float64)
+
+    rec, img, true = unit(reconstructions), unit(images), _as_numpy(true_masks)
+    if rec.shape != img.shape or rec.ndim != 4 or rec.shape[-1] != 3:
+        raise ValueError(f"reconstructions and images must both have shape (B, H, W, 3), got "
+                         f"{rec.shape} and {img.shape}")
+    if true.ndim != 4 or true.shape[0] != img.shape[0] or true.shape[2:] != img.shape[1:3]:
+        raise ValueError(f"true_masks must have shape (B={img.shape[0]}, k, {img.shape[1]}, "
+                         f"{img.shape[2]}), got {true.shape}")
+    true = true.astype(bool)
     out = np.zeros(true.shape[:2], bool)
-    for b in range(len(won)):
+    for b in range(len(img)):
         floor = ~true[b].any(0)
-        background = np.bincount(won[b][floor], minlength=K).argmax() if floor.any() else -1
+        if not floor.any():
+            continue
+        background = img[b][floor].mean(0)                             # (3,)
         for o in range(true.shape[1]):
-            if true[b, o].any():
-                out[b, o] = np.bincount(won[b][true[b, o]], minlength=K).argmax() == background
+            m = true[b, o]
+            if m.any():
+                painted, colour = rec[b][m].mean(0), img[b][m].mean(0)
+                out[b, o] = np.linalg.norm(painted - background) < np.linalg.norm(painted - colour)
     return out
 
 

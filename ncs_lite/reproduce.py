@@ -15,7 +15,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -180,23 +179,22 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
 def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7), episodes: int = 100,
                    data=None, out_dir=None, allow_dirty: bool = False) -> dict:
     """NCS success against the number of nodes, on one checkpoint's states (default: the
-    shipped one and its 5,000-episode training buffer, as its graph was built). Slot
-    inference over the buffer runs once; k-means and the evaluations once per point."""
+    shipped one and the 1,000-episode buffer its graph was built from). Slot inference over
+    the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
+    per point."""
     from .config import NCSConfig, to_dict
-    from .data import cached_buffer, load_buffer, manifest_hash
+    from .data import cached_buffer, manifest_hash
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import SHIPPED_CHECKPOINT, load_dslate
     from .ncs.graph import build_graph
-    from .ncs.perception import DSlatePerception
+    from .ncs.perception import DSlatePerception, buffer_transitions
 
     checkpoint = Path(checkpoint or SHIPPED_CHECKPOINT)
     model = load_dslate(checkpoint)
-    data = Path(data) if data else cached_buffer(5000, num_objects=4, seed=0)
+    data = Path(data) if data else cached_buffer(1000, num_objects=4, seed=0)
     base = NCSConfig()
     perception = DSlatePerception(model, iterations=base.iterations, restarts=base.restarts)
-    t0 = time.perf_counter()
-    states_t, states_t1, actions, true_slot = perception.transitions(load_buffer(data))
-    print(f"slot inference over the buffer: {time.perf_counter() - t0:.0f} s", flush=True)
+    states_t, states_t1, actions, true_slot = buffer_transitions(perception, data)
     rows = []
     for n in progress(clusters, desc="clusters"):
         graph = build_graph(states_t, states_t1, actions, clusters=n, seed=base.seed,

@@ -104,11 +104,13 @@ def _git(*args: str) -> str:
 
 
 def dirty_files() -> list[str]:
-    """Tracked files with uncommitted changes ([] outside git)."""
+    """Tracked files with uncommitted changes ([] outside git), figures/ aside: figures are
+    outputs, rewritten while `make reproduce` runs, and do not change what the code does."""
     try:
-        return [line[3:] for line in _git("status", "--porcelain", "--untracked-files=no").splitlines()]
+        lines = _git("status", "--porcelain", "--untracked-files=no").splitlines()
     except (OSError, subprocess.SubprocessError):
         return []
+    return [p for p in (line[3:] for line in lines) if not p.startswith("figures/")]
 
 
 def git_commit() -> str:
@@ -183,11 +185,21 @@ def source_hash(*parts: str) -> str:
     return h.hexdigest()[:16]
 
 
+def _repo_path(variable: str, default: Path) -> Path:
+    """$variable, a relative value read from the repo's root (notebooks run in notebooks/,
+    papermill in the caller's folder: the working directory must not decide), else default."""
+    value = os.environ.get(variable)
+    if not value:
+        return default
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else REPO_DIR / path
+
+
 def figures_dir() -> Path:
     """Where notebooks write figures: $NCS_LITE_FIGURES or <repo>/figures."""
-    return Path(os.environ.get("NCS_LITE_FIGURES", REPO_DIR / "figures"))
+    return _repo_path("NCS_LITE_FIGURES", REPO_DIR / "figures")
 
 
 def cache_dir() -> Path:
     """Where generated data and checkpoints are cached: $NCS_LITE_CACHE or <repo>/.cache."""
-    return Path(os.environ.get("NCS_LITE_CACHE", REPO_DIR / ".cache"))
+    return _repo_path("NCS_LITE_CACHE", REPO_DIR / ".cache")

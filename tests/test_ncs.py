@@ -182,3 +182,103 @@ def test_cli_graph_and_evaluate(tmp_path, capsys):
     assert "exactly one of --checkpoint" in capsys.readouterr().err
     assert main(["evaluate", "--method", "ncs-oracle", "--episodes", "2"]) == 2
     assert "needs a transition graph" in capsys.readouterr().err
+
+
+def test_agent_records_a_fallback_and_the_oracle_masks(oracle_graph):
+    """`last` says why an action was random, and the oracle's entities carry their masks."""
+    import gymnasium as gym
+
+    from ncs_lite.envs import make
+    from ncs_lite.ncs.perception import Entities
+    from ncs_lite.ncs.policy import NCSAgent, aligned_masks
+
+    env = make("block-rearrange", num_objects=4)
+    obs, info = env.reset(seed=1)
+    env.close()
+    agent = NCSAgent(oracle_graph, OraclePerception(), gym.spaces.Box(-1, 1, (6,)), seed=0)
+    agent.reset(obs, info)
+    action, was_random = agent.act(obs, info)
+    last = agent.last
+    assert not was_random and last["fallback"] is None and np.array_equal(last["action"], action)
+    goal_masks, current_masks = aligned_masks(last)
+    np.testing.assert_array_equal(current_masks.bool().numpy(), info["masks"][last["current_index"]])
+    np.testing.assert_array_equal(goal_masks.bool().numpy(), info["goal_masks"][last["goal_index"]])
+    assert last["probabilities"].sum() == pytest.approx(1.0) and not last["same_node"].any()
+
+    # a graph without the needed edge: a random action, and `last` says so
+    empty = TransitionGraph(oracle_graph.centroids, oracle_graph.bind_metric, {})
+    agent = NCSAgent(empty, OraclePerception(), gym.spaces.Box(-1, 1, (6,)), seed=0)
+    agent.reset(obs, info)
+    action, was_random = agent.act(obs, info)
+    assert was_random and agent.last["fallback"] == "no edge" and agent.last["selected"] is not None
+    # a perception without masks cannot be drawn
+    with pytest.raises(ValueError, match="records no masks"):
+        aligned_masks({**agent.last, "current": Entities(torch.zeros(1, 2), torch.zeros(1, 4))})
+
+
+def test_adjacency_and_node_order(oracle_graph):
+    adj = oracle_graph.adjacency()
+    assert adj.shape == (30, 30) and int((adj > 0).sum()) == oracle_graph.num_edges == 240
+    assert int(adj.sum()) == sum(sum(c.values()) for c in oracle_graph.edges.values())
+    assert int(adj.diagonal().sum()) == 0                                      # no self-loops
+    order = oracle_graph.node_order()
+    assert sorted(order.tolist()) == list(range(30))
+    used = [i for i in order if adj[i].sum() + adj[:, i].sum() > 0]           # the 16 cells' nodes
+    xy = oracle_graph.node_positions()[used]
+    rows = np.concatenate([[0], np.cumsum(np.diff(xy[:, 1]) > 6)])
+    assert rows[-1] == 3 and np.all(np.diff(xy[:, 1]) > -6)                    # 4 rows, top to bottom
+    for r in range(4):
+        assert np.all(np.diff(xy[rows == r, 0]) >= 0)                          # each row left to right
+
+
+def test_cached_loads_what_it_stored_and_recomputes_on_a_new_key(tmp_path, monkeypatch, capsys):
+    from ncs_lite.cache import cache_path, cached, digest
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return (torch.arange(3), np.array([True, False]), {"rows": [{"a": 1, "b": None}]})
+
+    first = cached("thing", compute, model=digest(torch.ones(2)), k=4)
+    again = cached("thing", compute, model=digest(torch.ones(2)), k=4)
+    assert len(calls) == 1 and "loaded thing" in capsys.readouterr().out
+    assert isinstance(again, tuple) and isinstance(again[1], np.ndarray) and again[1].dtype == bool
+    assert torch.equal(again[0], first[0]) and again[2] == first[2]
+    cached("thing", compute, model=digest(torch.ones(2)), k=5)                 # another parameter
+    cached("thing", compute, model=digest(torch.zeros(2)), k=4)               # another input
+    assert len(calls) == 3
+    # an unreadable file is recomputed and replaced, and the message says why
+    cache_path("thing", model=digest(torch.ones(2)), k=4).write_bytes(b"not a torch file")
+    cached("thing", compute, model=digest(torch.ones(2)), k=4)
+    assert len(calls) == 4 and "cannot be read" in capsys.readouterr().out
+    with pytest.raises(TypeError, match="cannot cache"):
+        cached("other", lambda: object())
+    with pytest.raises(TypeError, match="must hold digests"):
+        cached("other", compute, model=torch.ones(2))
+    assert digest(torch.ones(2)) != digest(torch.ones(2, dtype=torch.float64))
+    assert digest({"a": 1, "b": 2}) == digest({"b": 2, "a": 1}) != digest({"a": 1, "b": 3})
+
+
+def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monkeypatch, capsys):
+    from ncs_lite.cache import code_digest
+    from ncs_lite.ncs.perception import buffer_transitions
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path / "cache"))
+    collect(tmp_path / "small", episodes=3, seed=0)
+    perception = OraclePerception()
+    first = buffer_transitions(perception, tmp_path / "small")
+    assert "computed transitions" in capsys.readouterr().out
+    again = buffer_transitions(perception, tmp_path / "small")
+    assert "loaded transitions" in capsys.readouterr().out
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    expected = perception.transitions(load_buffer(tmp_path / "small"))
+    torch.testing.assert_close(again[0], expected[0])
+    # another buffer is another key
+    collect(tmp_path / "other", episodes=3, seed=1)
+    buffer_transitions(perception, tmp_path / "other")
+    assert "computed transitions" in capsys.readouterr().out
+    # the code digest changes with the source
+    assert code_digest("models") != code_digest("ncs/perception.py")

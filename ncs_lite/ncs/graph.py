@@ -128,21 +128,24 @@ class TransitionGraph:
         scale = image_size / side
         return np.stack([(m * xs).sum((1, 2)) / total, (m * ys).sum((1, 2)) / total], 1) * scale
 
-    def draw(self, ax, background: np.ndarray | None = None, max_edges: int | None = None):
-        """Nodes at the mean image position of their masks, edges as arrows (width ~ count)."""
+    def adjacency(self) -> torch.Tensor:
+        """(N, N) int64 edge counts: entry [s, d] = transitions bound to the edge s -> d."""
+        adj = torch.zeros(self.num_nodes, self.num_nodes, dtype=torch.int64)
+        for (s, d), labels in self.edges.items():
+            adj[s, d] = sum(labels.values())
+        return adj
+
+    def node_order(self, row_gap: float = 6.0) -> np.ndarray:
+        """Node indices in reading order of their image positions: sorted by y, a new row
+        where y jumps by more than `row_gap` pixels, each row sorted by x. On a grid the
+        nodes of one cell come out next to each other, so an adjacency matrix drawn in this
+        order shows the grid's structure."""
         pos = self.node_positions()
-        if background is not None:
-            ax.imshow(background, alpha=0.35)
-        counts = {e: sum(c.values()) for e, c in self.edges.items()}
-        ranked = sorted(counts, key=counts.get, reverse=True)[:max_edges]
-        top = max(counts.values()) if counts else 1
-        for s, d in ranked:
-            ax.annotate("", xy=pos[d], xytext=pos[s], arrowprops=dict(
-                arrowstyle="->", lw=0.3 + 1.5 * counts[(s, d)] / top, alpha=0.5, color="tab:blue"))
-        ax.scatter(pos[:, 0], pos[:, 1], s=30, c="tab:red", zorder=3)
-        for i, (x, y) in enumerate(pos):
-            ax.text(x + 0.8, y - 0.8, str(i), fontsize=6, zorder=4)
-        ax.set_xlim(0, 64); ax.set_ylim(64, 0); ax.set_aspect("equal")
+        by_y = np.argsort(pos[:, 1], kind="stable")
+        row = np.concatenate([[0], np.cumsum(np.diff(pos[by_y, 1]) > row_gap)])
+        rows = np.empty(len(pos), np.int64)
+        rows[by_y] = row
+        return np.lexsort((pos[:, 0], rows))
 
 
 def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.ndarray, *,

@@ -7,25 +7,32 @@ the same graph and policy code runs on both and the gap between them is the cost
 learned representation.
 
 Masks are average-pooled to 16x16 = the dVAE token grid (64 / 4), so oracle and learned
-states share one feature space of D = 256.
+states share one feature space of D = 256. `Entities.masks` keeps the full-resolution masks
+the states were read from (for the learned perception: those of the restart it kept), so a
+figure draws exactly what the agent acted on.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
 STATE_GRID = 16
-# slot-attention restarts per image for NCS (DSlate.infer). Shipped model, 40 held-out images:
-# the slot that covers a cube binds to that cube's cell 88 % -> 100 % of the time at 4 objects
-# and 86 % -> 98 % at 7 (1 -> 8 restarts); the README has the NCS success this buys
+# slot-attention restarts per image for NCS (DSlate.infer): slot attention is a local search
+# and now and then two slots share a cube; notebook 03 measures fg-ARI and absorbed cubes
+# with one start and with RESTARTS
 RESTARTS = 8
 
 
 class Entities(NamedTuple):
-    types: torch.Tensor    # (K, Dz)
-    states: torch.Tensor   # (K, D)
+    """K entities of one image: types (K, Dz), states (K, D) and, when the perception has
+    them, the masks (K, H, W) the states were pooled from (float, summing to 1 over K for
+    the learned perception; 0/1 per object for the oracle)."""
+    types: torch.Tensor
+    states: torch.Tensor
+    masks: torch.Tensor | None = None
 
 
 def pool_masks(masks, grid: int = STATE_GRID) -> torch.Tensor:
@@ -44,18 +51,23 @@ class OraclePerception:
     reads_ground_truth = True
 
     def current(self, obs, info) -> Entities:
-        return Entities(torch.as_tensor(info["colors"]).float(), pool_masks(info["masks"]))
+        masks = torch.as_tensor(np.asarray(info["masks"])).float()
+        return Entities(torch.as_tensor(info["colors"]).float(), pool_masks(masks), masks)
 
     def goal(self, obs, info) -> Entities:
         keep = np.asarray(info["constrained"])
-        return Entities(torch.as_tensor(info["colors"][keep]).float(),
-                        pool_masks(info["goal_masks"][keep]))
+        masks = torch.as_tensor(np.asarray(info["goal_masks"])[keep]).float()
+        return Entities(torch.as_tensor(info["colors"][keep]).float(), pool_masks(masks), masks)
 
     def transitions(self, buffer: dict):
         """Buffer -> (states_t, states_t1 (M, k, D), actions (M, 6), true moved entity (M,))."""
         states = pool_masks(buffer["masks"])                          # (E, T, k, D)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
                 buffer["actions"].reshape(-1, 6), buffer["moved"].reshape(-1))
+
+    def describe(self) -> dict:
+        """What this perception's output depends on (a cache key, `buffer_transitions`)."""
+        return {"perception": "oracle", "grid": STATE_GRID}
 
 
 class DSlatePerception:
@@ -66,7 +78,9 @@ class DSlatePerception:
     of the slot ("slot").
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background. `restarts`
-    initial slot samples per image, the best reconstructed kept (`DSlate.infer`).
+    initial slot samples per image, the best reconstructed kept (`DSlate.infer`); the
+    entities, masks included, are those of the kept restart. Inference is seeded, so the
+    same image always gives the same entities.
     """
 
     reads_ground_truth = False
@@ -82,8 +96,9 @@ class DSlatePerception:
     def _entities(self, image) -> Entities:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots,
                              restarts=self.restarts)
-        states = pool_masks(r.masks) if self.state == "mask" else r.states
-        return Entities(r.types[0].cpu().float(), states[0].cpu().float())
+        masks = r.masks[0].cpu().float()                               # (K, H, W), the kept restart
+        states = pool_masks(masks) if self.state == "mask" else r.states[0].cpu().float()
+        return Entities(r.types[0].cpu().float(), states, masks)
 
     def current(self, obs, info=None) -> Entities:
         return self._entities(obs["image"])
@@ -96,7 +111,9 @@ class DSlatePerception:
 
         Slots follow objects through each video (frame t+1 starts from frame t's slots).
         The true moved slot (for coverage only) is the slot whose mask overlaps the moved
-        object's ground-truth mask most at frame t.
+        object's ground-truth mask most at frame t. Videos are read `batch_size` at a time
+        (the restarts' initial samples depend on the batch, so the result does too).
+        M = E * (T - 1) in episode order: transition t of episode e is row e * (T - 1) + t.
         """
         frames = buffer["frames"]
         states, masks = [], []
@@ -114,3 +131,35 @@ class DSlatePerception:
         true_slot = overlap.argmax(-1)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
                 buffer["actions"].reshape(-1, 6), true_slot.reshape(-1).numpy())
+
+    def describe(self) -> dict:
+        """What this perception's output depends on (a cache key, `buffer_transitions`)."""
+        from ..cache import digest
+
+        return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
+                "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
+                "batch_size": self.batch_size, "grid": STATE_GRID}
+
+
+# code the transitions of a buffer depend on (besides the buffer and the perception's settings)
+TRANSITIONS_CODE = ("models", "ncs/perception.py")
+
+
+def buffer_transitions(perception, directory: str | Path, buffer: dict | None = None):
+    """`perception.transitions` of the buffer at `directory`, computed once and cached
+    (`ncs_lite.cache`) under the buffer's content, the perception's settings and weights and
+    the code that computes it; a second call, in this or a later session, loads it.
+
+    The learned perception's pass over a buffer is the kit's most expensive step after
+    training (slot inference with restarts on every frame). `buffer`: the loaded buffer, if
+    the caller already has it (it must be the one at `directory`).
+    """
+    from ..cache import buffer_digest, cached, code_digest
+    from ..data import load_buffer
+
+    def compute():
+        data = buffer if buffer is not None else load_buffer(directory)
+        return tuple(perception.transitions(data))
+
+    return cached("transitions", compute, buffer=buffer_digest(directory), **perception.describe(),
+                  code=code_digest(*TRANSITIONS_CODE))

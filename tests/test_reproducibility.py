@@ -1,0 +1,146 @@
+"""Config overrides, resume/overwrite rules, provenance, and the CLI chain a user runs."""
+import csv
+import json
+
+import pytest
+import torch
+
+from ncs_lite import utils
+from ncs_lite.__main__ import main
+from ncs_lite.config import NCSConfig, apply_overrides, get_preset, ncs_config
+from ncs_lite.data import collect
+from ncs_lite.reproduce import mean_sd
+from ncs_lite.training import read_checkpoint, run_lock, train
+
+
+
+@pytest.fixture(scope="module")
+def buffer(tmp_path_factory):
+    return collect(tmp_path_factory.mktemp("buf") / "b", episodes=8, seed=0, shard_size=4)
+
+
+def test_override_sets_typed_values():
+    cfg = apply_overrides(get_preset("ci"), ["train.lr=2e-3", "slots.num_slots=4",
+                                             "train.lr_decay=cosine", "decoder.dropout=0"])
+    assert cfg.train.lr == 2e-3 and cfg.slots.num_slots == 4 and cfg.decoder.dropout == 0.0
+    assert isinstance(cfg.slots.num_slots, int) and cfg.train.lr_decay == "cosine"
+    assert get_preset("ci").train.lr != 2e-3              # the preset itself is untouched
+
+
+@pytest.mark.parametrize("text, message", [
+    ("train.lrr=1", r"unknown field 'lrr' of train; allowed fields: .*batch_size.*lr"),
+    ("bogus.lr=1", r"unknown config section 'bogus'; sections: decoder, dvae"),
+    ("train.lr=abc", r"expected a finite float, got 'abc'"),
+    ("train.lr=nan", r"expected a finite float"),
+    ("slots.num_slots=2.5", r"expected a finite int"),
+    ("train.lr", r"takes section.field=value"),
+    ("train.precision=fp16", r"train.precision must be"),        # the config's own validation
+])
+def test_override_errors_name_the_field(text, message):
+    with pytest.raises(ValueError, match=message):
+        apply_overrides(get_preset("ci"), [text])
+
+
+def test_ncs_overrides():
+    assert ncs_config(["ncs.restarts=1"], clusters=20) == NCSConfig(clusters=20, restarts=1)
+    with pytest.raises(ValueError, match="NCS fields only; allowed fields: ncs.clusters"):
+        ncs_config(["train.lr=1"])
+    with pytest.raises(ValueError, match="ncs.restarts must be an integer >= 1"):
+        ncs_config(["ncs.restarts=0"])
+
+
+def test_overrides_recorded_and_resume_refuses_differences(buffer, tmp_path):
+    cfg = apply_overrides(get_preset("ci"), ["train.lr=2e-3"])
+    out = train(cfg, buffer, tmp_path / "m.pt", max_steps=2, overrides=["train.lr=2e-3"])
+    ckpt = read_checkpoint(out)
+    assert ckpt["overrides"] == ["train.lr=2e-3"]
+    assert len(ckpt["data"]["manifest_sha256"]) == 16
+    assert ckpt["code_version"]["training_code"]
+    with pytest.raises(ValueError, match=r"precision: 'fp32' != 'bf16'"):
+        train(cfg, buffer, out, resume=True, precision="bf16")
+    with pytest.raises(ValueError, match=r"env: 'block-rearrange' != 'other'"):
+        train(cfg, buffer, out, resume=True, env="other")
+    other = collect(tmp_path / "other", episodes=8, seed=1, shard_size=4)
+    with pytest.raises(ValueError, match=r"buffer manifest"):
+        train(cfg, other, out, resume=True)
+
+
+def test_new_run_needs_force_and_force_starts_clean(buffer, tmp_path):
+    out = train(get_preset("ci"), buffer, tmp_path / "m.pt", max_steps=2)
+    before = out.read_bytes()
+    with pytest.raises(ValueError, match="already exists: pass --resume .* or --force"):
+        train(get_preset("ci"), buffer, out, max_steps=2)
+    assert out.read_bytes() == before                       # nothing was touched
+    train(get_preset("ci"), buffer, out, max_steps=3, force=True)
+    with open(out.with_suffix(".csv")) as f:
+        steps = [int(r["step"]) for r in csv.DictReader(f)]
+    assert steps == [1, 2, 3]                               # one run's log, not two
+
+
+def test_two_runs_on_one_out_refuse_each_other(tmp_path):
+    with run_lock(tmp_path / "m.pt"):
+        with pytest.raises(ValueError, match=r"another training run \(pid \d+\) is writing"):
+            with run_lock(tmp_path / "m.pt"):
+                pass
+    with run_lock(tmp_path / "m.pt"):                        # released afterwards
+        pass
+
+
+def test_provenance_refuses_dirty_writes_into_committed_folders(tmp_path, monkeypatch):
+    guarded = tmp_path / "figures"
+    monkeypatch.setattr(utils, "committed_result_dirs", lambda: (guarded,))
+    monkeypatch.setattr(utils, "dirty_files", lambda: ["ncs_lite/training.py"])
+    monkeypatch.delenv("NCS_LITE_ALLOW_DIRTY", raising=False)
+    with pytest.raises(ValueError, match=r"uncommitted changes \(ncs_lite/training.py\).*--allow-dirty"):
+        utils.provenance(guarded / "x" / "a.json")
+    assert utils.provenance(guarded / "a.json", allow_dirty=True)["dirty"] is True
+    assert utils.provenance(tmp_path / "elsewhere.json")["dirty"] is True   # not guarded
+    monkeypatch.setattr(utils, "dirty_files", lambda: [])
+    assert utils.provenance(guarded / "a.json")["dirty"] is False
+
+
+def test_dirty_tree_sends_figures_elsewhere(tmp_path, monkeypatch):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ncs_lite import figures
+
+    monkeypatch.setenv("NCS_LITE_FIGURES", str(tmp_path / "figures"))
+    monkeypatch.setattr(figures, "REPO_DIR", tmp_path)
+    monkeypatch.setattr(utils, "committed_result_dirs", lambda: (tmp_path / "figures",))
+    monkeypatch.setattr(utils, "dirty_files", lambda: ["ncs_lite/x.py"])
+    monkeypatch.delenv("NCS_LITE_ALLOW_DIRTY", raising=False)
+    fig = plt.figure()
+    png = figures.save_fig(fig, "nb", "f")
+    plt.close(fig)
+    assert png.parent == tmp_path / "build" / "figures-dirty" / "nb"
+    assert json.loads(png.with_suffix(".json").read_text())["dirty"] is True
+
+
+def test_mean_sd():
+    assert mean_sd([1.0, 0.5, 0.0]) == {"mean": 0.5, "sd": 0.5, "n": 3}
+    assert mean_sd([0.7])["n"] == 1 and mean_sd([0.7])["sd"] != mean_sd([0.7])["sd"]   # nan
+
+
+def test_cli_chain(tmp_path, monkeypatch, capsys):
+    """collect -> train --preset ci -> graph -> evaluate, as a user runs them."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["collect", "--episodes", "8", "--out", "data", "--shard-size", "4"]) == 0
+    assert main(["train", "--preset", "ci", "--data", "data", "--out", "m.pt",
+                 "--set", "train.lr=2e-3"]) == 0
+    assert read_checkpoint("m.pt")["config"]["train"]["lr"] == 2e-3
+    assert main(["train", "--preset", "ci", "--data", "data", "--out", "m.pt"]) == 2   # no --force
+    assert "already exists" in capsys.readouterr().err
+    assert main(["train", "--preset", "ci", "--data", "data", "--out", "m.pt", "--set", "train.nope=1"]) == 2
+    assert "unknown field 'nope' of train" in capsys.readouterr().err
+    assert main(["graph", "--checkpoint", "m.pt", "--data", "data", "--out", "g.pt",
+                 "--set", "ncs.clusters=5", "--set", "ncs.restarts=2"]) == 0
+    info = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert info["nodes"] == 5
+    assert main(["evaluate", "--method", "ncs", "--checkpoint", "m.pt", "--graph", "g.pt",
+                 "--episodes", "2", "--set", "ncs.restarts=1", "--out", "r.csv"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["episodes"] == 2 and 0 <= summary["success"] <= 1
+    with open("r.csv") as f:
+        assert len(list(csv.DictReader(f))) == 2
