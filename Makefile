@@ -11,7 +11,7 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters clean
+.PHONY: setup reproduce test bench seeds clusters clean exercises
 
 setup: $(STAMP)
 
@@ -33,9 +33,11 @@ reproduce: $(STAMP)
 	  exit 2; fi
 	mkdir -p $(BUILD)/notebooks
 	for nb in $(NOTEBOOKS); do \
-	  echo "== $$nb (preset=$(PRESET))"; \
+	  echo "== $$nb (preset=$(PRESET))"; start=$$(date +%s.%N); \
 	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
 	    $$nb $(BUILD)/notebooks/$$(basename $$nb) || exit 1; \
+	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"
 
@@ -57,6 +59,11 @@ seeds: $(STAMP)
 
 clusters: $(STAMP)
 	$(PY) -m ncs_lite reproduce clusters
+
+# Student copies (stubs that raise NotImplementedError) and solutions from the masters in
+# notebooks/; deterministic, so a rerun changes nothing (tests/test_exercises.py checks it).
+exercises: $(STAMP)
+	$(PY) -m ncs_lite.exercises --out exercises
 
 clean:
 	rm -rf $(BUILD)

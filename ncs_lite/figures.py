@@ -17,20 +17,39 @@ from .utils import (REPO_DIR, atomic_path, atomic_write_json, figures_dir, packa
 PRESETS = ("ci", "reduced", "paper")
 
 
+OWNER_PRESET = "reduced"   # the preset whose figures are committed in figures/
+_PRESET: str | None = None  # the preset the running notebook resolved (None: not known)
+
+
 def resolve_preset(preset: str) -> str:
     """The preset a notebook runs at: $NCS_LITE_PRESET (set by `make test`) wins over the
-    `parameters` cell, so nbmake runs every notebook at `ci` without editing it."""
+    `parameters` cell, so nbmake runs every notebook at `ci` without editing it. The answer is
+    remembered: `figure_folder` sends figures of any preset but `reduced` away from figures/."""
+    global _PRESET
     preset = os.environ.get("NCS_LITE_PRESET", preset)
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
+    _PRESET = preset
     return preset
 
 
 def figure_folder(notebook: str) -> Path:
-    """figures/<notebook>/, or build/figures-dirty/<notebook>/ when the tree has uncommitted
-    changes and the target is the committed `figures/` (unless NCS_LITE_ALLOW_DIRTY=1): a
-    committed figure always names the clean commit that drew it. `make reproduce` refuses a
-    dirty tree up front; an interactive session writes beside it and says where."""
+    """figures/<notebook>/, with two exceptions that keep the committed figures/ what
+    `make reproduce` drew:
+
+    - the notebook resolved a preset other than `reduced` (e.g. `ci` in an interactive session)
+      and $NCS_LITE_FIGURES is not set: build/figures/<preset>/<notebook>/;
+    - the tree has uncommitted changes and the target is the committed `figures/` (unless
+      NCS_LITE_ALLOW_DIRTY=1): build/figures-dirty/<notebook>/, so a committed figure always
+      names the clean commit that drew it. `make reproduce` refuses a dirty tree up front; an
+      interactive session writes beside it and says where."""
+    if _PRESET is not None and _PRESET != OWNER_PRESET and not os.environ.get("NCS_LITE_FIGURES"):
+        folder = REPO_DIR / "build" / "figures" / _PRESET / notebook
+        if (_PRESET, notebook) not in _WARNED:
+            _WARNED.add((_PRESET, notebook))
+            print(f"(preset {_PRESET}: figures of {notebook} go to {relative_to_repo(folder)}; "
+                  f"figures/ holds the `{OWNER_PRESET}` ones)")
+        return folder
     folder = figures_dir() / notebook
     try:
         provenance(folder)
@@ -44,7 +63,7 @@ def figure_folder(notebook: str) -> Path:
     return folder
 
 
-_WARNED: set[str] = set()
+_WARNED: set = set()
 
 
 def save_fig(fig, notebook: str, name: str, params: dict | None = None, model=None) -> Path:
@@ -136,3 +155,22 @@ def token_colours(vocab_size: int, seed: int = 0):
     colours = base * shade[:, None]
     colours = colours[np.random.default_rng(seed).permutation(vocab_size)]
     return ListedColormap(colours), BoundaryNorm(np.arange(vocab_size + 1) - 0.5, vocab_size)
+
+
+def measured_time(notebook: str) -> str:
+    """How long `notebook` took at `reduced`, from figures/notebook_times.json (written by
+    `make reproduce`: {"seconds": {"NN_name": s, ...}, "commit": ..., "dirty": ...}; a flat
+    {"NN_name": s, ...} is read too), as a sentence for the notebook's setup cell, or
+    "not measured yet" when the file or the entry is missing."""
+    import json
+
+    path = REPO_DIR / "figures" / "notebook_times.json"
+    try:
+        times = json.loads(path.read_text())
+        seconds = float(times.get("seconds", times)[notebook])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return f"time of {notebook} at `reduced`: not measured yet"
+    amount = f"about {max(1, round(seconds))} s" if seconds < 90 else f"about {round(seconds / 60)} min"
+    commit = str(times.get("commit") or "")[:7]
+    where = f" at commit {commit}" + (" with uncommitted changes" if times.get("dirty") else "") if commit else ""
+    return f"time of {notebook}: {amount} at `reduced` (measured by `make reproduce`{where})"

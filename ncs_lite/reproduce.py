@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .utils import (atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
+from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
                     relative_to_repo, sha256_file)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table",
@@ -212,6 +212,18 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
             "episodes": episodes, "ncs": to_dict(base)}
     write_table("clusters", rows, meta, out_dir, allow_dirty)
     return {"rows": rows}
+
+
+def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced") -> None:
+    """Add one notebook's wall time to figures/notebook_times.json (`make reproduce` calls it
+    after each notebook; the notebooks' openings quote it). Other presets than `reduced`,
+    which owns figures/, write to build/figures/<preset>/ instead."""
+    folder = figures_dir() if preset == "reduced" else REPO_DIR / "build" / "figures" / preset
+    path = folder / "notebook_times.json"
+    times = json.loads(path.read_text()) if path.exists() else {}
+    times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
+    times.update(preset=preset, **provenance(path, allow_dirty=True))
+    atomic_write_json(path, times)
 
 
 TABLES = {"seeds": seeds_table, "clusters": clusters_table}

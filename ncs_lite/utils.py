@@ -42,11 +42,32 @@ def progress_enabled() -> bool:
     return os.environ.get("NCS_LITE_PROGRESS", "1") not in ("0", "false", "no")
 
 
+def in_jupyter_kernel() -> bool:
+    """True inside a Jupyter kernel (JupyterLab, papermill, nbmake), False in a terminal."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return type(shell).__name__ == "ZMQInteractiveShell"
+
+
 def progress(iterable=None, **kwargs):
-    """`tqdm.auto.tqdm` that honours NCS_LITE_PROGRESS (notebook widget or terminal bar)."""
+    """A tqdm bar that honours NCS_LITE_PROGRESS (off under CI and `make test`).
+
+    In a terminal it is tqdm's usual bar. In a Jupyter kernel it is tqdm's *text* bar on
+    stdout, not a widget: a widget saved in a notebook reads "Error displaying widget: model
+    not found" once the notebook is reopened, while the text bar's last line (desc, count,
+    time) stays readable. In a kernel every bar is kept (`leave=True`) so each long loop
+    leaves that one-line record."""
+    kwargs.setdefault("disable", not progress_enabled())
+    if in_jupyter_kernel():
+        from tqdm.std import tqdm
+
+        kwargs.update(leave=True)
+        kwargs.setdefault("file", sys.stdout)
+        kwargs.setdefault("ncols", 100)
+        kwargs.setdefault("mininterval", 1.0)
+        return tqdm(iterable, **kwargs)
     from tqdm.auto import tqdm
 
-    kwargs.setdefault("disable", not progress_enabled())
     kwargs.setdefault("dynamic_ncols", True)
     return tqdm(iterable, **kwargs)
 

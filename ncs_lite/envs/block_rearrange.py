@@ -18,8 +18,36 @@ from dataclasses import asdict, dataclass
 
 import gymnasium as gym
 import numpy as np
-import pybullet as pb
 from gymnasium import spaces
+
+
+def _import_pybullet_quietly():
+    """`import pybullet` without the "pybullet build time: ..." line its C extension writes to
+    file descriptor 2 on import (in a notebook it is the first output, in a red stderr box).
+    fd 2 points at /dev/null for the import only and is restored afterwards; a failed import
+    still raises its ImportError."""
+    import os
+    import sys
+
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    sys.stderr.flush()
+    try:
+        saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    except OSError:                      # no usable fd 2: import as is
+        import pybullet
+        return pybullet
+    try:
+        os.dup2(devnull, 2)
+        import pybullet
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return pybullet
+
+
+pb = _import_pybullet_quietly()
 
 # Eight colours far apart in RGB, so up to 8 cubes are always distinguishable.
 PALETTE = np.array([

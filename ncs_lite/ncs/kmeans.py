@@ -65,6 +65,14 @@ from ..utils import progress, progress_enabled
 
 METRICS = ("cosine", "iou", "sqeuclidean")
 
+
+class EmptyClusterWarning(RuntimeWarning):
+    """k-means ended with empty clusters. Hidden by default: `kmeans` prints one explained
+    line instead (e.g. the oracle's ground-truth masks take fewer distinct values than k)."""
+
+
+warnings.filterwarnings("ignore", category=EmptyClusterWarning)
+
 # Default batch: about this many elements per (batch_size, max(D, K)) block (32 MB in float32).
 _BATCH_ELEMENTS = 2**23
 
@@ -440,8 +448,14 @@ def kmeans(x, k: int, metric: str = "sqeuclidean", *, seed: int = 0, max_iter: i
     if bar is not None:
         bar.close()
     if bool((counts == 0).any()):
-        warnings.warn(f"k-means ended with {int((counts == 0).sum())} empty cluster(s) of "
-                      f"k={k}: the data may hold fewer than k distinct points, or the last "
-                      f"update emptied a cluster (raise max_iter)", RuntimeWarning, stacklevel=2)
+        empty, distinct = int((counts == 0).sum()), int(torch.unique(x, dim=0).shape[0])
+        why = (f"the data hold only {distinct} distinct points" if distinct < k
+               else "the last update emptied a cluster (raise max_iter)")
+        # one plain line a reader can act on, not a warning with a source path; the warning
+        # (EmptyClusterWarning, a RuntimeWarning) is still raised for code that catches it
+        print(f"k-means: {empty} of k={k} clusters ended empty, because {why}; "
+              "no point of the data is assigned to them")
+        warnings.warn(EmptyClusterWarning(
+            f"k-means ended with {empty} empty cluster(s) of k={k}: {why}"), stacklevel=2)
     return KMeansResult(centroids=centroids, labels=labels, inertia=inertia, n_iter=n_iter,
                         converged=converged)
