@@ -99,7 +99,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     `objects` (complete goals, horizon 4x). Resumable; hours on a CPU."""
     from .config import NCSConfig, apply_overrides, get_preset, to_dict
     from .data import cached_buffer, load_buffer
-    from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
+    from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
     from .ncs.graph import TransitionGraph, graph_from_buffer
     from .ncs.perception import DSlatePerception

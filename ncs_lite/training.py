@@ -34,7 +34,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
-import math
 import os
 import time
 from pathlib import Path

@@ -3,7 +3,6 @@ import csv
 import json
 
 import pytest
-import torch
 
 from ncs_lite import utils
 from ncs_lite.__main__ import main
