@@ -98,11 +98,11 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     start and with NCS's restarts, and NCS success on `episodes` seeded tasks per count in
     `objects` (complete goals, horizon 4x). Resumable; hours on a CPU."""
     from .config import NCSConfig, apply_overrides, get_preset, to_dict
-    from .data import cached_buffer, load_buffer
+    from .data import cached_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
-    from .ncs.graph import TransitionGraph, graph_from_buffer
-    from .ncs.perception import DSlatePerception
+    from .ncs.graph import TransitionGraph, build_graph
+    from .ncs.perception import DSlatePerception, buffer_transitions
     from .training import read_checkpoint, train
 
     from .inference import TRAIN_EPISODES
@@ -135,9 +135,12 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             graph = graph if graph.info.get("key") == graph_key else None
         if graph is None:
             print(f"seed {seed}: graph", flush=True)
+            # the same cached buffer pass and build as `python -m ncs_lite graph`
             perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.restarts)
-            graph = graph_from_buffer(load_buffer(cached_buffer(graph_episodes, env=env, seed=0)),
-                                      perception, ncs.clusters, seed=ncs.seed)
+            states_t, states_t1, actions, moved = buffer_transitions(
+                perception, cached_buffer(graph_episodes, env=env, seed=0))
+            graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, seed=ncs.seed,
+                                true_entity=moved)
             graph.info["key"] = graph_key
             graph.save(graph_path)
 
