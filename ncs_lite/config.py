@@ -29,6 +29,10 @@ class DVAEConfig:
     tau_end: float = 0.1        # ... to this value ...
     tau_steps: int = 30_000     # ... over this many optimizer steps
     lr: float = 3e-4            # constant, no warm-up
+    foreground_weight: float = 1.0  # weight of pixels far from the image's median colour in
+    #                             the reconstruction (1 = the paper's plain sum), see
+    #                             DSlate.forward: the smallest cube colour nearest the floor's
+    #                             is otherwise coded as floor
 
 
 @dataclass
@@ -71,6 +75,9 @@ class DynamicsConfig:
     heads: int = 4
     hidden: int = 96
     dropout: float = 0.1        # Table 2's dropout, applied to both transformers
+    latent_weight: float = 0.0  # weight of a latent loss (not in the paper): squared error of
+    #                             the predicted next states against frame t+1's inferred states
+    #                             (detached). 0 = the dynamics learns from ce_dyn alone (paper)
 
 
 @dataclass
@@ -83,6 +90,11 @@ class MixtureConfig:
     #                             grid; "attention" = slot attention's masks on its own grid
     foreground_weight: float = 1.0  # weight of pixels far from the image's median colour in
     #                             the reconstruction (1 = plain sum), see DSlate.mixture_error
+    appearance: str = "slot"    # what a slot paints: "slot" = from the whole slot and the
+    #                             position; "type" = one look from z alone (mixture_decoder.py)
+    state_mask_weight: float = 0.0  # weight of the state-mask loss: each slot's mask drawn from
+    #                             its state s alone against slot attention's (state_decoder.py);
+    #                             0 = off. Makes s hold where the object is
 
 
 @dataclass
@@ -160,8 +172,22 @@ class DSlateConfig:
                              f"({self.slots.encoder_stride})")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
-        if not self.mixture.foreground_weight >= 1.0:
-            raise ValueError(f"mixture.foreground_weight must be >= 1, got {self.mixture.foreground_weight}")
+        if self.mixture.appearance not in ("slot", "type"):
+            raise ValueError(f"mixture.appearance must be 'slot' or 'type', got {self.mixture.appearance!r}")
+        if self.mixture.appearance == "type" and self.mixture.alpha != "attention":
+            raise ValueError("mixture.appearance 'type' paints without a position and needs "
+                             f"mixture.alpha 'attention', got {self.mixture.alpha!r}")
+        for name, value in (("mixture.foreground_weight", self.mixture.foreground_weight),
+                            ("dvae.foreground_weight", self.dvae.foreground_weight)):
+            if not value >= 1.0:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        for name, value in (("mixture.state_mask_weight", self.mixture.state_mask_weight),
+                            ("dynamics.latent_weight", self.dynamics.latent_weight)):
+            if not value >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if self.mixture.state_mask_weight > 0 and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
+            raise ValueError("mixture.state_mask_weight > 0 learns slot attention's masks from s and "
+                             "needs the mixture decoder (mixture.weight > 0) with mixture.alpha 'attention'")
         if self.train.precision not in ("auto", "bf16", "fp32"):
             raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
         if self.train.lr_decay not in ("none", "cosine"):
@@ -235,13 +261,14 @@ def _reduced() -> DSlateConfig:
     """
     return DSlateConfig(
         name="reduced",
-        dvae=DVAEConfig(vocab_size=64, hidden=64, tau_steps=600, lr=3e-3),
+        dvae=DVAEConfig(vocab_size=64, hidden=64, tau_steps=600, lr=3e-3, foreground_weight=5.0),
         slots=SlotConfig(num_slots=5, iterations=3, eval_iterations=7, heads=1,
                          type_dim=32, state_dim=32, mlp_hidden=128, encoder="cnn", encoder_stride=2),
         decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5,
                               slot_grad=0.0),
-        dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0),
-        mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0),
+        dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0, latent_weight=1.0),
+        mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0,
+                              appearance="type", state_mask_weight=0.1),
         train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250, polish_steps=600, polish_lr=2e-4,
@@ -253,13 +280,14 @@ def _ci() -> DSlateConfig:
     """The `reduced` model's structure at toy widths: seconds per run, every code path."""
     return DSlateConfig(
         name="ci",
-        dvae=DVAEConfig(vocab_size=16, hidden=16, tau_steps=20, lr=1e-3),
+        dvae=DVAEConfig(vocab_size=16, hidden=16, tau_steps=20, lr=1e-3, foreground_weight=5.0),
         slots=SlotConfig(num_slots=3, iterations=2, eval_iterations=3, heads=1,
                          type_dim=8, state_dim=8, mlp_hidden=16, encoder="cnn", encoder_stride=2),
         decoder=DecoderConfig(layers=1, heads=2, hidden=16, dropout=0.1, token_dropout=0.25,
                               slot_grad=0.0),
-        dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1),
-        mixture=MixtureConfig(weight=1.0, hidden=16, alpha="attention", foreground_weight=5.0),
+        dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1, latent_weight=1.0),
+        mixture=MixtureConfig(weight=1.0, hidden=16, alpha="attention", foreground_weight=5.0,
+                              appearance="type", state_mask_weight=0.1),
         train=TrainConfig(epochs=1, episodes_per_epoch=16, window=2, batch_size=4, lr=1e-3,
                           warmup_steps=2, dvae_warmup_steps=1, precision="fp32",
                           checkpoint_every=2, polish_steps=2),
@@ -282,22 +310,24 @@ def to_dict(cfg: DSlateConfig) -> dict:
 
 
 def from_dict(d: dict) -> DSlateConfig:
-    """Rebuild a config from `to_dict`; unknown or missing keys raise ValueError."""
+    """Rebuild a config from `to_dict`; unknown keys raise ValueError.
+
+    A missing key takes its field's default: fields added since a file was written default
+    to the behaviour the code had before them (every new departure is off by default)."""
     def build(cls, data, where):
         if not isinstance(data, dict):
             raise ValueError(f"config {where or 'root'} must be a dict, got {type(data).__name__}")
         names = {f.name: f for f in fields(cls)}
         extra = set(data) - set(names)
-        missing = set(names) - set(data)
-        if extra or missing:
+        if extra:
             raise ValueError(f"config {where or 'root'} does not match this code's {cls.__name__}: "
-                             f"unknown keys {sorted(extra)}, missing keys {sorted(missing)}")
+                             f"unknown keys {sorted(extra)}")
         kwargs = {}
         for n, f in names.items():
             default = f.default_factory() if callable(f.default_factory) else None  # type: ignore[misc]
             if is_dataclass(default):
-                kwargs[n] = build(type(default), data[n], f"{where}.{n}".strip("."))
-            else:
+                kwargs[n] = build(type(default), data.get(n, to_dict(default)), f"{where}.{n}".strip("."))
+            elif n in data:
                 kwargs[n] = data[n]
         return cls(**kwargs)
 

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from .config import DSlateConfig, config_diff, get_preset, to_dict
-from .models.dslate import MODEL_VERSION, DSlate
+from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
 from .utils import (atomic_torch_save, package_versions, progress, provenance, relative_to_repo,
                     seed_everything, source_hash)
@@ -55,7 +55,7 @@ __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr
 TRAINING_CODE = ("models", "training.py", "config.py", "data", "envs")
 
 CHECKPOINT_FORMAT = 1
-CSV_FIELDS = ["step", "loss", "mse", "ce", "ce_dyn", "mix", "tau", "lr", "grad_norm", "seconds"]
+CSV_FIELDS = ["step", *LOSSES, "tau", "lr", "grad_norm", "seconds"]
 
 
 # ---------------------------------------------------------------------- devices and precision
@@ -355,7 +355,7 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
             seconds += time.perf_counter() - t0
 
             vals = {k: float(v.detach()) for k, v in out.items()}
-            writer.writerow([step, *(f"{vals[k]:.4f}" for k in ("loss", "mse", "ce", "ce_dyn", "mix")),
+            writer.writerow([step, *(f"{vals[k]:.4f}" for k in LOSSES),
                              f"{tau:.4f}", f"{lr:.3e}", f"{float(grad_norm):.4g}", f"{seconds:.1f}"])
             bar.update(1)
             if step % 10 == 0 or step == stop:

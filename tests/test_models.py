@@ -152,24 +152,32 @@ def test_dynamics_carries_type_exactly_and_is_equivariant():
 
 
 # ---------------------------------------------------------------- dSLATE
-@pytest.mark.parametrize("token_dropout, encoder, mixture, alpha, slot_grad", [
-    (0.0, "tokens", 0.0, "decoder", 1.0),                   # the paper's model
-    (0.5, "tokens", 0.5, "decoder", 1.0),
-    (0.5, "tokens", 0.5, "attention", 1.0),
-    (0.5, "cnn", 0.5, "attention", 0.0),                    # the `reduced` preset's choices
+@pytest.mark.parametrize("token_dropout, encoder, mixture, alpha, slot_grad, split", [
+    (0.0, "tokens", 0.0, "decoder", 1.0, False),            # the paper's model
+    (0.5, "tokens", 0.5, "decoder", 1.0, False),
+    (0.5, "tokens", 0.5, "attention", 1.0, False),
+    (0.5, "cnn", 0.5, "attention", 0.0, False),
+    (0.5, "cnn", 0.5, "attention", 0.0, True),              # the `reduced` preset's choices
 ])
-def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha, slot_grad):
+def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha, slot_grad, split):
     torch.manual_seed(0)
     cfg = tiny_cfg()
     cfg.decoder.token_dropout, cfg.decoder.slot_grad = token_dropout, slot_grad
     cfg.slots.encoder, cfg.mixture.weight, cfg.mixture.alpha = encoder, mixture, alpha
+    if split:   # the split's departures: look from z, masks from s, latent dynamics, dVAE weight
+        cfg.mixture.appearance, cfg.mixture.state_mask_weight = "type", 0.3
+        cfg.dynamics.latent_weight, cfg.dvae.foreground_weight = 2.0, 5.0
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
-    assert set(out) == {"loss", "mse", "ce", "ce_dyn", "mix"}
+    assert set(out) == {"loss", "mse", "ce", "ce_dyn", "mix", "mask", "latent"}
     assert all(x.ndim == 0 and torch.isfinite(x) for x in out.values())
     assert (out["mix"] > 0) == (mixture > 0)
-    assert torch.allclose(out["loss"], out["mse"] + out["ce"] + out["ce_dyn"] + mixture * out["mix"])
+    assert (out["mask"] > 0) == (out["latent"] > 0) == split
+    assert torch.allclose(out["loss"], out["mse"] + out["ce"] + out["ce_dyn"] + mixture * out["mix"]
+                          + cfg.mixture.state_mask_weight * out["mask"]
+                          + cfg.dynamics.latent_weight * out["latent"])
+    assert m.can_render == split
     K, Dz, Ds = cfg.slots.num_slots, cfg.slots.type_dim, cfg.slots.state_dim
     r = m.infer(v[:, 0])
     assert r.slots.shape == (2, K, Dz + Ds) and r.types.shape == (2, K, Dz)
@@ -185,6 +193,18 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     assert torch.equal(nxt[..., :Dz], r.types)
     vid = m.infer_video(v)
     assert vid.slots.shape == (2, 3, K, Dz + Ds) and vid.masks.shape == (2, 3, K, 64, 64)
+    if split:
+        img = m.render(nxt)
+        assert img.shape == (2, 64, 64, 3) and 0 <= img.min() and img.max() <= 1
+        drawn = m.state_masks_of(r.slots)
+        assert drawn.shape == (2, K, 64, 64)
+        assert torch.allclose(drawn.sum(1), torch.ones(2, 64, 64), atol=1e-5)
+        # the drawn masks read s alone: changing z changes nothing
+        other = torch.cat([torch.randn_like(r.types), r.states], -1)
+        assert torch.allclose(m.state_masks_of(other), drawn)
+    else:
+        with pytest.raises(ValueError, match="render needs"):
+            m.render(r.slots)
 
 
 @pytest.mark.parametrize("mixture", [0.0, 1.0])
@@ -266,6 +286,35 @@ def test_mixture_decoder_attention_alpha():
         mix(slots)
     with pytest.raises(ValueError, match="alpha must be one of"):
         MixtureDecoder(6, 4, 2, 8, alpha="slots")
+
+
+def test_mixture_decoder_type_appearance_paints_one_look_from_z_alone():
+    """appearance "type": a slot paints the same patch at every position, read from z only."""
+    torch.manual_seed(0)
+    mix = MixtureDecoder(slot_dim=6, grid=4, patch=2, hidden=8, alpha="attention",
+                         appearance="type", type_dim=2)
+    slots, attn = torch.randn(2, 3, 6), torch.softmax(torch.randn(2, 3, 16), dim=1)
+    one_slot = torch.zeros_like(attn)
+    one_slot[:, 1] = 1.0                                          # slot 1 takes every position
+    patches, _ = mix(slots, one_slot)
+    assert torch.allclose(patches, patches[:, :1].expand_as(patches))   # the same look everywhere
+    restated = torch.cat([slots[..., :2], torch.randn(2, 3, 4)], -1)    # another state s
+    assert torch.allclose(mix(restated, attn)[0], mix(slots, attn)[0])
+    with pytest.raises(ValueError, match="needs alpha 'attention'"):
+        MixtureDecoder(6, 4, 2, 8, alpha="decoder", appearance="type", type_dim=2)
+
+
+def test_state_mask_decoder_reads_positions_as_coordinates():
+    from ncs_lite.models.state_decoder import StateMaskDecoder, coordinate_grid
+
+    grid = coordinate_grid(4)
+    assert grid.shape == (16, 2) and torch.allclose(grid[0], torch.tensor([-0.75, -0.75]))
+    assert torch.allclose(grid[1], torch.tensor([-0.75, -0.25]))   # row-major like the tokens
+    dec = StateMaskDecoder(state_dim=5, grid=4, hidden=8)
+    states = torch.randn(2, 3, 5)
+    assert dec(states).shape == (2, 3, 16)
+    perm = torch.tensor([2, 0, 1])
+    assert torch.allclose(dec(states[:, perm]), dec(states)[:, perm])   # per slot
 
 
 @pytest.mark.parametrize("slot_grad", [0.0, 0.5])

@@ -6,12 +6,19 @@ object through a video. The dynamics predicts s_{t+1} from all slots and the act
 copies z, which makes the type action-invariant and the state the part that moves.
 
 Training loss for a video of T frames (per-image sums, averaged over images):
-    mse      dVAE reconstruction of every frame (sum over pixels)
+    mse      dVAE reconstruction of every frame (sum over pixels; pixels far from the image's
+             median colour weighted by cfg.dvae.foreground_weight, 1 in `paper`)
     ce       SLATE token cross-entropy of every frame decoded from its slots (sum over tokens)
     ce_dyn   token cross-entropy of frame t+1 decoded from the *predicted* slots
     mix      auxiliary mixture-decoder reconstruction of every frame from its slots (sum
              over pixels), weighted by cfg.mixture.weight: 0 in `paper`, see mixture_decoder.py
-    loss     = mse + ce + ce_dyn + weight * mix
+    mask     cross-entropy of slot attention's masks (detached) under the masks drawn from
+             the states s alone (sum over positions), weighted by cfg.mixture.state_mask_weight
+             (0 in `paper`, see state_decoder.py)
+    latent   squared error of the predicted states of frame t+1 against its inferred states
+             (detached; sum over slots and features), weighted by cfg.dynamics.latent_weight
+             (0 in `paper`)
+    loss     = mse + ce + ce_dyn + weights * (mix, mask, latent)
 ce and ce_dyn reach slot attention with their gradient scaled by cfg.decoder.slot_grad
 (1 in `paper`; `reduced` lets the slots learn from the mixture decoder alone).
 As in SLATE, the transformer's targets are the dVAE's *sampled* hard tokens, detached,
@@ -30,20 +37,30 @@ import torch.nn.functional as F
 from torch import nn
 
 from .decoder import TransformerDecoder
-from .dvae import DVAE, patchify
+from .dvae import DVAE, patchify, unpatchify
 from .dynamics import Dynamics
 from .mixture_decoder import MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
 from .slot_attention import SlotAttention
+from .state_decoder import StateMaskDecoder
 
 __all__ = ["DSlate", "SlotInference", "MODEL_VERSION"]
 
 # Bump when a change makes old checkpoints load into a different function.
 MODEL_VERSION = "dslate-2"
+LOSSES = ("loss", "mse", "ce", "ce_dyn", "mix", "mask", "latent")
 # RGB distance from the median colour above which a pixel counts as foreground in the
 # weighted mixture loss (cube-to-floor distances here are >= 0.47; anti-aliased edges lower)
 FOREGROUND_DISTANCE = 0.1
+
+
+def foreground(x: torch.Tensor) -> torch.Tensor:
+    """(B, H, W, 1) bool: pixels of images x (B, H, W, 3) in [0, 1] whose colour is farther
+    than FOREGROUND_DISTANCE from the image's median colour. The median is the floor's in
+    these scenes (most pixels); no ground truth is read."""
+    background = x.flatten(1, 2).median(dim=1).values[:, None, None]   # (B, 1, 1, 3)
+    return (x - background).norm(dim=-1, keepdim=True) > FOREGROUND_DISTANCE
 
 
 def scale_grad(x: torch.Tensor, scale: float) -> torch.Tensor:
@@ -92,7 +109,10 @@ class DSlate(nn.Module):
         mx = cfg.mixture
         mix_grid = cfg.mask_grid if mx.alpha == "attention" else cfg.grid
         self.mixture = (MixtureDecoder(sc.slot_dim, mix_grid, cfg.image_size // mix_grid, mx.hidden,
-                                       mx.alpha) if mx.weight > 0 else None)
+                                       mx.alpha, mx.appearance, sc.type_dim)
+                        if mx.weight > 0 else None)
+        self.state_masks = (StateMaskDecoder(sc.state_dim, cfg.mask_grid, mx.hidden)
+                            if mx.state_mask_weight > 0 else None)
 
     # ------------------------------------------------------------------ input checks
     def _check_images(self, images, ndim: int, what: str) -> torch.Tensor:
@@ -170,10 +190,15 @@ class DSlate(nn.Module):
         code_logits = self.dvae.logits(x)                              # (B*T, N, V)
         soft, ids = self.dvae.sample(code_logits, tau)                 # (B*T, N, V), (B*T, N)
         recon = self.dvae.decode(soft.to(code_logits.dtype))           # (B*T, H, W, 3)
-        mse = (recon.float() - x).pow(2).sum(dim=(1, 2, 3)).mean()
+        err = (recon.float() - x).pow(2)                               # (B*T, H, W, 3)
+        w = self.cfg.dvae.foreground_weight
+        if w != 1.0:
+            err = err * (1.0 + (w - 1.0) * foreground(x))
+        mse = err.sum(dim=(1, 2, 3)).mean()
+        zero = mse.new_zeros(())
+        out = dict.fromkeys(LOSSES, zero)
         if dvae_only:
-            zero = mse.new_zeros(())
-            return {"loss": mse, "mse": mse, "ce": zero, "ce_dyn": zero, "mix": zero}
+            return {**out, "loss": mse, "mse": mse}
 
         emb = self._embed(ids)                                         # (B*T, N, d)
         slots, attn = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D), (B, T, K, N')
@@ -187,12 +212,23 @@ class DSlate(nn.Module):
         logits_dyn = self.decoder(emb_next, pred.flatten(0, 1))        # (B*(T-1), N, V)
         ce_dyn = F.cross_entropy(logits_dyn.flatten(0, 1).float(), ids.reshape(B, T, -1)[:, 1:].flatten(),
                                  reduction="sum") / (B * (T - 1))
+        out.update(mse=mse, ce=ce, ce_dyn=ce_dyn)
         loss = mse + ce + ce_dyn
-        mix = mse.new_zeros(())
         if self.mixture is not None:
-            mix = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1), foreground_weight).mean()
-            loss = loss + self.cfg.mixture.weight * mix
-        return {"loss": loss, "mse": mse, "ce": ce, "ce_dyn": ce_dyn, "mix": mix}
+            out["mix"] = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1),
+                                            foreground_weight).mean()
+            loss = loss + self.cfg.mixture.weight * out["mix"]
+        if self.state_masks is not None:
+            logits = self.state_masks(slots[..., self.type_dim:].flatten(0, 1))   # (B*T, K, N')
+            target = attn.flatten(0, 1).detach().float()
+            out["mask"] = -(target * logits.float().log_softmax(1)).sum((1, 2)).mean()
+            loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
+        if self.cfg.dynamics.latent_weight > 0:
+            target = slots[:, 1:, :, self.type_dim:].detach()
+            out["latent"] = (pred[..., self.type_dim:] - target).float().pow(2).sum((2, 3)).mean()
+            loss = loss + self.cfg.dynamics.latent_weight * out["latent"]
+        out["loss"] = loss
+        return out
 
     def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor,
                       foreground_weight: float | None = None) -> torch.Tensor:
@@ -212,9 +248,8 @@ class DSlate(nn.Module):
         err = (patches - patchify(x, p)).pow(2)                        # (B, N, p*p*3)
         w = self.cfg.mixture.foreground_weight if foreground_weight is None else foreground_weight
         if w != 1.0:
-            background = x.flatten(1, 2).median(dim=1).values[:, None, None]   # (B, 1, 1, 3)
-            far = (x - background).norm(dim=-1, keepdim=True) > FOREGROUND_DISTANCE  # (B, H, W, 1)
-            err = err * patchify(1.0 + (w - 1.0) * far.expand_as(x).to(err.dtype), p)
+            far = foreground(x).expand_as(x).to(err.dtype)             # (B, H, W, 3)
+            err = err * patchify(1.0 + (w - 1.0) * far, p)
         return err.sum(dim=(1, 2))
 
     # ------------------------------------------------------------------ inference API
@@ -331,6 +366,38 @@ class DSlate(nn.Module):
             return self.dynamics(slots.to(self.pos_emb.dtype), actions)
         finally:
             self.train(was_training)
+
+    @property
+    def can_render(self) -> bool:
+        """Whether `render` works: the model has the mixture and state-mask decoders."""
+        return self.mixture is not None and self.state_masks is not None
+
+    @torch.no_grad()
+    def state_masks_of(self, slots: torch.Tensor) -> torch.Tensor:
+        """The masks (B, K, H, W) that the states of slots (B, K, D) alone draw, summing to 1
+        over K (state_decoder.py); compare `infer(...).masks`, slot attention's own."""
+        if self.state_masks is None:
+            raise ValueError("this model has no state-mask decoder (mixture.state_mask_weight = 0)")
+        logits = self.state_masks(slots[..., self.type_dim:].to(self.pos_emb.dtype))
+        return self.upsample_masks(logits.float().softmax(1))
+
+    @torch.no_grad()
+    def render(self, slots: torch.Tensor) -> torch.Tensor:
+        """The image the slots alone describe: each slot's look (mixture decoder, from z)
+        where its state s says it is (state-mask decoder). slots (B, K, D), inferred or
+        predicted by `predict` -> images (B, H, W, 3) float in [0, 1]. Needs `can_render`;
+        the paper's model decodes through its transformer instead (`decode`)."""
+        if not self.can_render:
+            raise ValueError("render needs the mixture decoder and the state-mask decoder "
+                             "(mixture.weight > 0 and mixture.state_mask_weight > 0); "
+                             "use decode() for the SLATE decoder")
+        if slots.ndim != 3 or slots.shape[-1] != self.slot_dim:
+            raise ValueError(f"slots must have shape (B, K, {self.slot_dim}), got {tuple(slots.shape)}")
+        slots = slots.to(self.pos_emb.dtype)
+        alpha = self.state_masks(slots[..., self.type_dim:]).float().softmax(1)   # (B, K, N')
+        patches, _ = self.mixture(slots, alpha)                        # (B, N', p*p*3)
+        g = self.mixture.grid
+        return unpatchify(patches, self.cfg.image_size // g, g).clamp(0, 1)
 
     @torch.no_grad()
     def decode_tokens(self, slots: torch.Tensor, temperature: float = 0.0,

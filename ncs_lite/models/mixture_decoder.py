@@ -17,8 +17,18 @@ Where the mixing weights (alpha) come from:
   "every slot paints the floor" plateau 2-3x sooner than "decoder" (measured, README).
   The decoder must then work on slot attention's grid (patch = image size / grid).
 
-It costs a small MLP over K x N positions. Shapes: slots (B, K, D) [, attention (B, K, N)]
--> patches (B, N, p*p*3), alpha (B, K, N) summing to 1 over K.
+What a slot paints (appearance):
+* "slot": the whole slot and the position, an MLP at every grid position (Locatello et al.);
+* "type": the type half z alone, one patch repeated at every position: a slot paints one
+  look wherever it is (not in any paper; `reduced`). A decoder that knows where it paints
+  can give the floor's slot a cube of the floor's colour at the cube's place, and the
+  floor's slot then keeps that cube at no cost (the absorbed cubes of notebook 03); one
+  that does not know pays for every pixel of another colour, so the attention gradient
+  moves the cube to a slot of its own. It also leaves position out of z: z only has to say
+  what the object looks like. Needs alpha "attention" (nothing else says where).
+
+It costs a small MLP over K x N positions ("slot") or K ("type"). Shapes: slots (B, K, D)
+[, attention (B, K, N)] -> patches (B, N, p*p*3), alpha (B, K, N) summing to 1 over K.
 """
 from __future__ import annotations
 
@@ -30,16 +40,23 @@ from .positional import sinusoid_2d
 __all__ = ["MixtureDecoder"]
 
 ALPHAS = ("decoder", "attention")
+APPEARANCES = ("slot", "type")
 
 
 class MixtureDecoder(nn.Module):
-    def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int, alpha: str = "decoder"):
+    def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int, alpha: str = "decoder",
+                 appearance: str = "slot", type_dim: int | None = None):
         super().__init__()
         if alpha not in ALPHAS:
             raise ValueError(f"alpha must be one of {ALPHAS}, got {alpha!r}")
-        self.alpha, self.grid = alpha, grid
-        self.pos = nn.Parameter(sinusoid_2d(grid, hidden))           # (1, N, hidden)
-        self.inp = nn.Linear(slot_dim, hidden)
+        if appearance not in APPEARANCES:
+            raise ValueError(f"appearance must be one of {APPEARANCES}, got {appearance!r}")
+        if appearance == "type" and (alpha != "attention" or not type_dim):
+            raise ValueError("appearance 'type' paints without a position: it needs alpha "
+                             f"'attention' and a type_dim, got {alpha!r} and {type_dim!r}")
+        self.alpha, self.grid, self.appearance, self.type_dim = alpha, grid, appearance, type_dim
+        self.pos = nn.Parameter(sinusoid_2d(grid, hidden)) if appearance == "slot" else None
+        self.inp = nn.Linear(type_dim if appearance == "type" else slot_dim, hidden)
         out = patch * patch * 3 + (alpha == "decoder")                # pixels [+ alpha logit]
         # one hidden layer: it runs at K x N positions, the largest activations of the step
         self.mlp = nn.Sequential(nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))
@@ -48,14 +65,18 @@ class MixtureDecoder(nn.Module):
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """slots (B, K, D) [, attention (B, K, N) for alpha "attention"] -> (mixed patches
         (B, N, p*p*3), alpha (B, K, N) summing to 1 over K)."""
+        K, N = slots.shape[1], self.grid ** 2
+        if self.alpha == "attention" and (attention is None or attention.shape[1:] != (K, N)):
+            got = None if attention is None else tuple(attention.shape)
+            raise ValueError(f"alpha 'attention' needs attention of shape (B, {K}, {N}), got {got}")
+        if self.appearance == "type":                                 # one look per slot
+            look = self.mlp(self.inp(slots[..., :self.type_dim])).float()   # (B, K, p*p*3)
+            alpha = attention.float()
+            return torch.einsum("bkn,bkc->bnc", alpha, look), alpha
         h = self.inp(slots)[:, :, None] + self.pos[:, None]          # (B, K, N, hidden)
         out = self.mlp(h).float()                                     # (B, K, N, p*p*3 [+ 1])
         if self.alpha == "decoder":
             alpha, pixels = torch.softmax(out[..., -1], dim=1), out[..., :-1]
         else:
-            if attention is None or attention.shape != out.shape[:3]:
-                got = None if attention is None else tuple(attention.shape)
-                raise ValueError(f"alpha 'attention' needs attention of shape {tuple(out.shape[:3])}, "
-                                 f"got {got}")
             alpha, pixels = attention.float(), out
         return (alpha[..., None] * pixels).sum(1), alpha
