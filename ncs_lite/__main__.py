@@ -31,39 +31,48 @@ def _graph(args):
     from .data import manifest_hash
     from .inference import load_dslate
     from .ncs.graph import build_graph
-    from .ncs.perception import DSlatePerception, OraclePerception, buffer_transitions
+    from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions
     from .utils import provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
-    cfg = ncs_config(args.overrides, clusters=args.clusters, seed=args.seed)
+    cfg = ncs_config(args.overrides, clusters=args.clusters, seed=args.seed, state=args.state)
     made = provenance(args.out, args.allow_dirty)
-    perception = (OraclePerception() if args.oracle else
+    perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
-                                   restarts=cfg.restarts))
+                                   restarts=cfg.restarts, state=cfg.state))
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
-    graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, seed=cfg.seed,
-                        true_entity=moved)
+    graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
+                        seed=cfg.seed, true_entity=moved)                # info["state"] = cfg.state
     graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
-                      oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides), **made)
+                      oracle=args.oracle, perception_state=perception.state, ncs=to_dict(cfg),
+                      overrides=list(args.overrides), **made)
     graph.save(args.out)
-    print(json.dumps({"out": args.out, "nodes": graph.num_nodes, "edges": graph.num_edges,
-                      "coverage": graph.info.get("coverage")}))
+    print(json.dumps({"out": args.out, "state": graph.state, "nodes": graph.num_nodes,
+                      "edges": graph.num_edges, "coverage": graph.info.get("coverage")}))
 
 
 def _evaluate(args):
-    from .config import ncs_config
+    from .config import ncs_config, parse_override
     from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
     from .inference import load_dslate
     from .ncs.graph import TransitionGraph
     from .utils import provenance
 
-    cfg = ncs_config(args.overrides)
+    graph = TransitionGraph.load(args.graph) if args.graph else None
+    # the agent reads the kind of state its graph was built on: unless --state (or
+    # --set ncs.state) says otherwise, and then the graph must agree (checked below)
+    asked = args.state is not None or any(parse_override(o)[0] == "ncs.state" for o in args.overrides)
+    cfg = ncs_config(args.overrides, state=args.state if asked or graph is None else graph.state)
+    if graph is not None and args.method != "random":
+        try:
+            graph.check_state(cfg.state)
+        except ValueError as exc:
+            raise ValueError(f"--graph {args.graph}: {exc}") from None
     if args.out:
         provenance(args.out, args.allow_dirty)
-    graph = TransitionGraph.load(args.graph) if args.graph else None
     model = load_dslate(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
@@ -100,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clusters", type=int, default=None,
                    help="nodes (= --set ncs.clusters; Table 4: 30 for block-rearrange)")
     p.add_argument("--seed", type=int, default=None, help="k-means seed (= --set ncs.seed)")
+    p.add_argument("--state", default=None,
+                   help="entity state, Table 3: mask (default) | slot (= --set ncs.state; the oracle's "
+                        "stand-in for slot states is the cube's position)")
     p.add_argument("--out", required=True)
     add_run_arguments(p)
     p.set_defaults(func=_graph)
@@ -109,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", required=True, help="ncs | ncs-oracle | random")
     p.add_argument("--checkpoint")
     p.add_argument("--graph")
+    p.add_argument("--state", default=None,
+                   help="mask | slot (= --set ncs.state); default: the state the graph was built on, "
+                        "a different one is refused")
     p.add_argument("--num-objects", type=int, default=4)
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--goal", default="complete", help="complete | partial")

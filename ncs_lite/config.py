@@ -214,6 +214,9 @@ class NCSConfig:
     iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
     extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
     seed: int = 0               # k-means seed
+    state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
+    #                             mask (block-rearrange), "slot" = the state half s of the slot
+    #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
 
     def validate(self) -> "NCSConfig":
         for name, low in (("clusters", 1), ("restarts", 1), ("iterations", 1), ("extra_slots", 0),
@@ -221,6 +224,9 @@ class NCSConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"ncs.{name} must be an integer >= {low}, got {value!r}")
+        states = ("mask", "slot")   # = sorted(ncs.graph.METRICS_BY_STATE), checked by a test
+        if self.state not in states:
+            raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
         return self
 
 
@@ -268,7 +274,7 @@ def _reduced() -> DSlateConfig:
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0, latent_weight=1.0),
         mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0,
-                              appearance="type", state_mask_weight=0.1),
+                              appearance="type", state_mask_weight=0.5),
         train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250, polish_steps=600, polish_lr=2e-4,

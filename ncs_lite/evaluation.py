@@ -125,13 +125,15 @@ METHODS = ("ncs", "ncs-oracle", "random")
 def learned_perception(model, num_objects: int, ncs=None):
     """The perception the `ncs` agent reads a scene of `num_objects` objects with: one slot
     per object plus `ncs.extra_slots` (the background's), at least the model's K, and the
-    restarts and iterations of `ncs` (an `NCSConfig`, default the paper's reading)."""
+    restarts, iterations and kind of state of `ncs` (an `NCSConfig`, default the paper's
+    reading)."""
     from .config import NCSConfig
     from .ncs.perception import DSlatePerception
 
     ncs = ncs or NCSConfig()
     slots = max(model.cfg.slots.num_slots, num_objects + ncs.extra_slots)
-    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots, restarts=ncs.restarts)
+    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots, restarts=ncs.restarts,
+                            state=ncs.state)
 
 
 def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
@@ -139,9 +141,11 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
     also a dSLATE model. `ncs` (an `NCSConfig`, default the paper's reading) sets how the
     learned agent reads the model: restarts, iterations, and `extra_slots` slots beyond one
     per object (the background's) when the scene holds more objects than the model's K
-    (`learned_perception`)."""
+    (`learned_perception`). `ncs.state` is the kind of state both NCS agents read (the
+    oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on."""
     from .baselines import RandomAgent
-    from .ncs.perception import OraclePerception
+    from .config import NCSConfig
+    from .ncs.perception import ORACLE_STATES, OraclePerception
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
@@ -150,8 +154,10 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
         return lambda env: RandomAgent(env.action_space, seed)
     if graph is None:
         raise ValueError(f"method {method!r} needs a transition graph (--graph)")
+    ncs = ncs or NCSConfig()
+    graph.check_state(ncs.state)
     if method == "ncs-oracle":
-        return lambda env: NCSAgent(graph, OraclePerception(), env.action_space, seed)
+        return lambda env: NCSAgent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed)
     if model is None:
         raise ValueError("method 'ncs' needs a dSLATE checkpoint (--checkpoint)")
 
@@ -182,8 +188,10 @@ def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed
         return evaluate(make, tasks, name)
     from .cache import cached, code_digest, digest
 
+    ncs = ncs or NCSConfig()
     key = {"method": method, "label": name, "tasks": asdict(tasks), "seed": seed,
-           "ncs": asdict(ncs or NCSConfig()) if method == "ncs" else None,
+           "ncs": asdict(ncs) if method == "ncs" else None,          # holds ncs.state
+           "state": ncs.state if method != "random" else None,
            "graph": digest(graph) if method != "random" else None,
            "model": digest(model) if method == "ncs" else None,
            "code": code_digest(*EVALUATION_CODE)}

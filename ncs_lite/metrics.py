@@ -1,4 +1,4 @@
-"""Segmentation metrics: foreground adjusted Rand index (fg-ARI).
+"""Segmentation metrics (fg-ARI, absorbed objects) and the type/state split's metrics.
 
 ARI compares two partitions of the same pixels and is 1 for identical partitions (up to
 relabelling) and ~0 for chance. Foreground ARI (Greff et al. 2019; Locatello et al. 2020)
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 __all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
-           "lost_in_reconstruction"]
+           "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -173,3 +173,223 @@ def evaluate_segmentation(model, directory, num_slots: int | None = None, iterat
     return {"fg_ari": float(s.mean()), "std": float(s.std()), "sem": float(s.std() / np.sqrt(len(s))),
             "images": int(len(s)), "num_slots": int(num_slots or model.cfg.slots.num_slots),
             "iterations": int(iterations or model.cfg.slots.eval_iterations)}
+
+
+# ---------------------------------------------------------------------- the type/state split
+def ridge_probe(train_x, train_y, test_x, test_y, alpha: float = 1.0) -> float:
+    """R^2 on (test_x, test_y) of a ridge regression fitted on (train_x, train_y).
+
+    x (n, d) features, y (n, c) targets; features standardised with the training half's
+    mean and spread. R^2 = 1 - SSE / SST summed over the c targets (SST around the test
+    targets' own mean), so 0 = predicting the mean, 1 = perfect, < 0 = worse than the mean.
+    """
+    tx, ty, vx, vy = (np.asarray(a, np.float64) for a in (train_x, train_y, test_x, test_y))
+    if tx.ndim != 2 or ty.ndim != 2 or len(tx) != len(ty) or len(vx) != len(vy) or len(tx) < 2:
+        raise ValueError(f"ridge_probe needs x (n, d) and y (n, c) with n >= 2, got {tx.shape}, "
+                         f"{ty.shape}, {vx.shape}, {vy.shape}")
+    mu, sd = tx.mean(0), tx.std(0) + 1e-8
+    tx, vx = (tx - mu) / sd, (vx - mu) / sd
+    ym = ty.mean(0)
+    w = np.linalg.solve(tx.T @ tx + alpha * np.eye(tx.shape[1]), tx.T @ (ty - ym))
+    pred = vx @ w + ym
+    return float(1.0 - ((vy - pred) ** 2).sum() / ((vy - vy.mean(0)) ** 2).sum())
+
+
+def _ridge_fit(x, y, alpha: float = 1.0):
+    """The ridge map of `ridge_probe` as a function (to read predicted states)."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    mu, sd, ym = x.mean(0), x.std(0) + 1e-8, y.mean(0)
+    xs = (x - mu) / sd
+    w = np.linalg.solve(xs.T @ xs + alpha * np.eye(x.shape[1]), xs.T @ (y - ym))
+    return lambda v: ((np.asarray(v, np.float64) - mu) / sd) @ w + ym
+
+
+def _r2(pred, target) -> float:
+    pred, target = np.asarray(pred, np.float64), np.asarray(target, np.float64)
+    return float(1.0 - ((target - pred) ** 2).sum() / ((target - target.mean(0)) ** 2).sum())
+
+
+def _colour_ids(colors: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """(E, k, 3) object colours -> (E, k) integer ids of the distinct colours, and a name per
+    id (block-rearrange's colour name where the colour is one of its palette's)."""
+    from .envs.block_rearrange import COLOR_NAMES, PALETTE
+
+    flat = np.round(np.asarray(colors, np.float64).reshape(-1, 3), 4)
+    distinct, ids = np.unique(flat, axis=0, return_inverse=True)
+    names = []
+    for i, c in enumerate(distinct):
+        d = np.linalg.norm(PALETTE - c, axis=1)
+        names.append(COLOR_NAMES[d.argmin()] if d.min() < 1e-3 else f"colour {i}")
+    return ids.reshape(colors.shape[:2]), names
+
+
+def _floor_pixels(decoded, images, true_masks) -> np.ndarray:
+    """(B, k) fraction of object o's pixels that `decoded` paints nearer the floor's colour
+    (the image's mean outside every object) than the pixel's true colour; NaN without pixels.
+    A perfect round trip scores 0 (shaded sides and anti-aliased edges included)."""
+    out = np.full(true_masks.shape[:2], np.nan)
+    for b in range(len(images)):
+        floor = ~true_masks[b].any(0)
+        background = images[b][floor].mean(0)
+        for o in range(true_masks.shape[1]):
+            m = true_masks[b, o]
+            if m.any():
+                px, colour = decoded[b][m], images[b][m]
+                out[b, o] = float((np.linalg.norm(px - background, axis=-1)
+                                   < np.linalg.norm(px - colour, axis=-1)).mean())
+    return out
+
+
+@torch.no_grad()
+def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_size: int = 50) -> dict:
+    """Slots of every frame of a buffer's videos, and which slot holds which object.
+
+    Slots are inferred through each video (`infer_video`: slot k follows one object) with
+    one slot per object plus one for the floor; object o's slot in a frame is the slot
+    winning most of its true pixels (`slot_assignment`). Returns arrays:
+      slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
+      per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
+      states (n, Ds), positions (n, 2) true (x, y), colours (n,) colour ids; and
+      all_positions (E, T, k, 2), all_colours (E, k), colour_names (one per id).
+    """
+    frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
+    E, T, k = true.shape[:3]
+    slots, masks = [], []
+    for i in range(0, E, batch_size):
+        r = model.infer_video(frames[i:i + batch_size], num_slots=k + 1, restarts=restarts, seed=seed)
+        slots.append(r.slots.cpu().float())
+        masks.append(r.masks.cpu().float())
+    slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)
+    owner, _ = slot_assignment(masks.flatten(0, 1), true.reshape(E * T, *true.shape[2:]))
+    owner = owner.reshape(E, T, k)
+    Dz = model.type_dim
+    z, s = slots[..., :Dz].numpy(), slots[..., Dz:].numpy()
+    pos = np.asarray(buffer["positions"])[..., :2]                     # (E, T, k, 2)
+    colour, names = _colour_ids(buffer["colors"])                      # (E, k)
+    e_idx, t_idx, o_idx = np.nonzero(owner >= 0)
+    slot_of = owner[e_idx, t_idx, o_idx]
+    return {"slots": slots, "masks": masks, "owner": owner, "z": z, "s": s,
+            "episode": e_idx, "frame": t_idx, "object": o_idx,
+            "types": z[e_idx, t_idx, slot_of], "states": s[e_idx, t_idx, slot_of],
+            "positions": pos[e_idx, t_idx, o_idx], "colours": colour[e_idx, o_idx],
+            "all_positions": pos, "all_colours": colour, "colour_names": names}
+
+
+@torch.no_grad()
+def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
+                         batch_size: int = 50) -> dict:
+    """How well a dSLATE splits slots into type z and state s, on held-out transitions.
+
+    `buffer`: a loaded buffer (`ncs_lite.data.load_buffer`) the model was not trained on.
+    Slots are inferred through each video (slot k follows one object), with one slot per
+    object plus one for the floor. Ground truth is used only to match slots to objects
+    (the slot winning most of an object's pixels, `slot_assignment`) and as the probes'
+    targets. Probes are fitted on the first half of the episodes, scored on the second.
+
+      type_invariance      mean |z_t - z_t+1| of an object's slot across a transition over
+                           mean |z_i - z_j| between two objects' slots in one image (0 = z
+                           never moves; 1 = it moves as far as another object's z is)
+      identity_from_z      nearest-centroid accuracy of the object's colour from z (chance:
+                           1 / colours)
+      position_r2_from_s / _from_z   ridge R^2 of the object's (x, y) from s / from z
+      moved_slot_accuracy  how often the dynamics' largest predicted state change (L2) is on
+                           the slot of the object the action moved (chance: 1 / slots)
+      predicted_position_r2   R^2 of the moved object's next (x, y) read by the s-probe from
+                           the *predicted* s; `no_change_position_r2` reads it from the
+                           current s (the trivial baseline: predict no change)
+      render_fg_error, floor_fg_error   mean absolute pixel error on the objects' pixels of
+                           the image drawn from the slots alone (`DSlate.render`) and of an
+                           image of the empty floor (only for models that can render)
+      predicted_render_error, no_change_error   on the moved object's pixels (at t and t+1):
+                           the frame drawn from the predicted slots and the current frame,
+                           each against the true next frame
+      dvae_floor_by_colour {colour name: fraction of its pixels the dVAE round trip paints
+                           nearer the floor than the colour}; dvae_floor_max its maximum
+    Plus the counts they rest on.
+    """
+    frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
+    f = matched_slots(model, buffer, restarts, seed, batch_size)
+    E, T, k = true.shape[:3]
+    K, Dz = k + 1, model.type_dim
+    slots, owner, z, s = f["slots"], f["owner"], f["z"], f["s"]
+    pos, colour, colour_names = f["all_positions"], f["all_colours"], f["colour_names"]
+    e_idx, o_idx = f["episode"], f["object"]
+    feats_z, feats_s, target = f["types"], f["states"], f["positions"]
+    train = e_idx < E // 2
+    test = ~train
+
+    # type invariance: the same slot across a transition vs two objects in one image
+    moves, apart = [], []
+    for e in range(E):
+        for t in range(T):
+            own = [j for j in owner[e, t] if j >= 0]
+            for a in range(len(own)):
+                for b in range(a + 1, len(own)):
+                    if own[a] != own[b]:
+                        apart.append(np.linalg.norm(z[e, t, own[a]] - z[e, t, own[b]]))
+            if t + 1 < T:
+                for j in own:
+                    moves.append(np.linalg.norm(z[e, t, j] - z[e, t + 1, j]))
+    # identity: nearest colour centroid of z
+    labels = f["colours"]
+    classes = np.unique(labels[train])
+    centroids = np.stack([feats_z[train][labels[train] == c].mean(0) for c in classes])
+    guess = classes[np.linalg.norm(feats_z[test][:, None] - centroids[None], axis=-1).argmin(1)]
+
+    # dynamics over every transition t -> t+1
+    actions = torch.as_tensor(np.asarray(buffer["actions"]), dtype=torch.float32)   # (E, T-1, 6)
+    now = slots[:, :-1].flatten(0, 1)                                  # (M, K, D)
+    pred = torch.cat([model.predict(now[i:i + 500].to(model.device),
+                                    actions.flatten(0, 1)[i:i + 500].to(model.device)).cpu().float()
+                      for i in range(0, len(now), 500)])
+    change = (pred[..., Dz:] - now[..., Dz:]).norm(dim=-1).numpy()     # (M, K)
+    moved = np.asarray(buffer["moved"]).reshape(-1)                    # (M,) object index
+    ep = np.repeat(np.arange(E), T - 1)
+    tt = np.tile(np.arange(T - 1), E)
+    moved_slot = owner[ep, tt, moved]
+    ok = moved_slot >= 0
+    hits = change.argmax(1)[ok] == moved_slot[ok]
+    read_pos = _ridge_fit(feats_s[train], target[train])
+    m_test = ok & (ep >= E // 2)
+    next_pos = pos[ep, tt + 1, moved][m_test]
+    pred_s = pred[..., Dz:].numpy()[m_test, moved_slot[m_test]]
+    cur_s = now[..., Dz:].numpy()[m_test, moved_slot[m_test]]
+
+    out = {
+        "type_invariance": float(np.mean(moves) / np.mean(apart)),
+        "identity_from_z": float((guess == labels[test]).mean()),
+        "identity_chance": float(1.0 / len(classes)),
+        "position_r2_from_s": ridge_probe(feats_s[train], target[train], feats_s[test], target[test]),
+        "position_r2_from_z": ridge_probe(feats_z[train], target[train], feats_z[test], target[test]),
+        "moved_slot_accuracy": float(hits.mean()),
+        "moved_slot_chance": float(1.0 / K),
+        "predicted_position_r2": _r2(read_pos(pred_s), next_pos),
+        "no_change_position_r2": _r2(read_pos(cur_s), next_pos),
+        "episodes": int(E), "objects_matched": int(len(e_idx)), "transitions": int(ok.sum()),
+        "restarts": int(restarts), "slots": int(K),
+    }
+
+    images = frames.reshape(E * T, *frames.shape[2:]).astype(np.float64) / 255.0
+    flat_true = true.reshape(E * T, k, *true.shape[3:])
+    if model.can_render:
+        drawn = np.concatenate([model.render(slots.flatten(0, 1)[i:i + 200].to(model.device)).cpu().numpy()
+                                for i in range(0, E * T, 200)]).astype(np.float64)
+        fg = flat_true.any(1)                                          # (E*T, H, W)
+        floor = np.median(images.reshape(E * T, -1, 3), axis=1)[:, None, None]
+        out["render_fg_error"] = float(np.abs(drawn - images).mean(-1)[fg].mean())
+        out["floor_fg_error"] = float(np.abs(floor - images).mean(-1)[fg].mean())
+        nxt = np.concatenate([model.render(pred[i:i + 200].to(model.device)).cpu().numpy()
+                              for i in range(0, len(pred), 200)]).astype(np.float64)
+        cur_img = frames[:, :-1].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
+        next_img = frames[:, 1:].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
+        region = true[ep, tt, moved] | true[ep, tt + 1, moved]         # (M, H, W)
+        out["predicted_render_error"] = float(np.abs(nxt - next_img).mean(-1)[region].mean())
+        out["no_change_error"] = float(np.abs(cur_img - next_img).mean(-1)[region].mean())
+    recon = np.concatenate([model.reconstruct(frames.reshape(E * T, *frames.shape[2:])[i:i + 200]).cpu().numpy()
+                            for i in range(0, E * T, 200)]).astype(np.float64)
+    lost = _floor_pixels(recon, images, flat_true)                     # (E*T, k)
+    ids = np.repeat(colour, T, axis=0)                                 # (E*T, k)
+    by_colour = {colour_names[c]: float(np.nanmean(lost[ids == c])) for c in np.unique(ids)}
+    out["dvae_floor_by_colour"] = by_colour
+    out["dvae_floor_max"] = max(by_colour.values())
+    return out

@@ -88,19 +88,30 @@ def _stage(path: Path, key: dict, compute):
 
 
 # ---------------------------------------------------------------------- seeds
+# factorization_scores' measures that the seeds table reports (issue 12's targets)
+SPLIT_METRICS = ("type_invariance", "identity_from_z", "position_r2_from_s", "position_r2_from_z",
+                 "moved_slot_accuracy", "predicted_position_r2", "no_change_position_r2",
+                 "render_fg_error", "floor_fg_error", "predicted_render_error", "no_change_error",
+                 "dvae_floor_max")
+
+
 def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | None = None,
                 overrides=(), episodes: int = 100, objects=(4, 7), images: int | None = None,
                 graph_episodes: int | None = None, clusters: int = 30,
                 env: str = "block-rearrange", out_dir=None, allow_dirty: bool = False) -> dict:
     """Train `preset` (+ `overrides`) once per seed on the 4-object buffer (5,000 episodes,
-    buffer seed 0: the shipped recipe), then for each seed: the graph from the buffer's
-    first `graph_episodes` (1,000) episodes (`clusters` nodes), fg-ARI at 4 and 7 objects with one
-    start and with NCS's restarts, and NCS success on `episodes` seeded tasks per count in
-    `objects` (complete goals, horizon 4x). Resumable; hours on a CPU."""
-    from .config import NCSConfig, apply_overrides, get_preset, to_dict
-    from .data import cached_buffer
+    buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
+    100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
+    and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
+    first `graph_episodes` (1,000) episodes (`clusters` nodes) and NCS success on `episodes`
+    seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
+    is keyed by what it depends on); a run of another recipe in `runs` is refused. Hours on
+    a CPU."""
+    from .config import NCSConfig, apply_overrides, config_diff, get_preset, to_dict
+    from .data import cached_buffer, load_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
+    from .metrics import factorization_scores
     from .ncs.graph import TransitionGraph, build_graph
     from .ncs.perception import DSlatePerception, buffer_transitions
     from .training import read_checkpoint, train
@@ -108,7 +119,6 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .inference import TRAIN_EPISODES
 
     runs = Path(runs) if runs else cache_dir() / "seeds"
-    ncs = NCSConfig(clusters=clusters)
     train_episodes = TRAIN_EPISODES[preset]
     graph_episodes = graph_episodes or min(1000, train_episodes)
     images = images or (20 if preset == "ci" else 200)
@@ -119,6 +129,11 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         ckpt_path = folder / "dslate.pt"
         cfg = apply_overrides(get_preset(preset), overrides)
         cfg.train.seed = int(seed)
+        if ckpt_path.exists():
+            differ = config_diff(read_checkpoint(ckpt_path)["config"], to_dict(cfg))
+            if differ:
+                raise ValueError(f"{ckpt_path} was trained with another recipe ({'; '.join(differ[:4])}); "
+                                 "give another --runs folder or delete that run")
         done = ckpt_path.exists() and int(read_checkpoint(ckpt_path)["step"]) >= cfg.train.total_steps()
         if not done:
             print(f"seed {seed}: training {preset} -> {ckpt_path}", flush=True)
@@ -127,53 +142,60 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         model = load_dslate(ckpt_path)
         ckpt_hash = sha256_file(ckpt_path)
 
-        graph_path = folder / "graph.pt"
-        graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs)}
-        graph = None
-        if graph_path.exists():
-            graph = TransitionGraph.load(graph_path)
-            graph = graph if graph.info.get("key") == graph_key else None
-        if graph is None:
-            print(f"seed {seed}: graph", flush=True)
-            # the same cached buffer pass and build as `python -m ncs_lite graph`
-            perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.restarts)
-            states_t, states_t1, actions, moved = buffer_transitions(
-                perception, cached_buffer(graph_episodes, env=env, seed=0))
-            graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, seed=ncs.seed,
-                                true_entity=moved)
-            graph.info["key"] = graph_key
-            graph.save(graph_path)
-
         row = {"seed": seed, "train_minutes": round(float(ckpt["seconds"]) / 60, 1),
-               "commit": (ckpt.get("code_version") or {}).get("commit"),
-               "graph_edges": graph.num_edges, "coverage": round(graph.info.get("coverage", float("nan")), 4)}
+               "commit": (ckpt.get("code_version") or {}).get("commit")}
+        split = _stage(folder / "factorization.json", {"checkpoint": ckpt_hash, "episodes": 100},
+                       lambda: factorization_scores(model, load_buffer(cached_buffer(
+                           100, env=env, num_objects=4, seed=1000))))
+        row.update({f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS})
         for k in (4, 7):
-            for restarts in (1, ncs.restarts):
+            for restarts in (1, NCSConfig().restarts):
                 seg = _stage(folder / f"segmentation-k{k}-r{restarts}.json",
                              {"checkpoint": ckpt_hash, "images": images},
                              lambda: segmentation_scores(model, k, images, restarts))
                 row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
                 row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
-        for k in objects:
-            tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
+        for state in ("mask", "slot"):
+            ncs = NCSConfig(clusters=clusters, state=state)
+            suffix = "" if state == "mask" else "_slot"
+            graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
+            graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs)}
+            graph = TransitionGraph.load(graph_path) if graph_path.exists() else None
+            if graph is None or graph.info.get("key") != graph_key:
+                print(f"seed {seed}: graph on {state} states", flush=True)
+                # the same cached buffer pass and build as `python -m ncs_lite graph`
+                perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.restarts,
+                                              state=state)
+                states_t, states_t1, actions, moved = buffer_transitions(
+                    perception, cached_buffer(graph_episodes, env=env, seed=0))
+                graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=state,
+                                    seed=ncs.seed, true_entity=moved)
+                graph.info.update(key=graph_key, state=state)
+                graph.save(graph_path)
+            row[f"graph_edges{suffix}"] = graph.num_edges
+            row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
+            for k in objects:
+                tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
 
-            def run_ncs():
-                return summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=ncs),
-                                          tasks, "ncs"))[0]
+                def run_ncs():
+                    return summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=ncs),
+                                              tasks, "ncs"))[0]
 
-            s = _stage(folder / f"ncs-k{k}.json", {"checkpoint": ckpt_hash, "graph": graph_key,
-                                                   "tasks": repr(tasks)}, run_ncs)
-            row[f"ncs_{k}"], row[f"ncs_{k}_ci"] = s["success"], f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
-            row[f"random_fraction_{k}"] = round(s["random_fraction"], 3)
+                s = _stage(folder / f"ncs{suffix.replace('_', '-')}-k{k}.json",
+                           {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks)}, run_ncs)
+                row[f"ncs{suffix}_{k}"] = s["success"]
+                row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+                row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
         rows.append(row)
         print(json.dumps(row), flush=True)
 
-    metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "train_minutes"))
-               and not c.endswith("_ci")]
+    metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "train_minutes",
+                                                   "split_")) and not c.endswith("_ci")]
     summary = {m: mean_sd([r[m] for r in rows]) for m in metrics}
     meta = {"preset": preset, "overrides": list(overrides), "seeds": list(seeds),
             "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
-            "objects": list(objects), "images": images, "ncs": to_dict(ncs), "summary": summary}
+            "objects": list(objects), "images": images, "clusters": clusters,
+            "ncs": to_dict(NCSConfig(clusters=clusters)), "summary": summary}
     write_table(f"seeds_{preset}", rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "summary": summary}
 

@@ -164,9 +164,9 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     cfg = tiny_cfg()
     cfg.decoder.token_dropout, cfg.decoder.slot_grad = token_dropout, slot_grad
     cfg.slots.encoder, cfg.mixture.weight, cfg.mixture.alpha = encoder, mixture, alpha
-    if split:   # the split's departures: look from z, masks from s, latent dynamics, dVAE weight
-        cfg.mixture.appearance, cfg.mixture.state_mask_weight = "type", 0.3
-        cfg.dynamics.latent_weight, cfg.dvae.foreground_weight = 2.0, 5.0
+    # the split's departures (look from z, masks from s, latent dynamics, dVAE weight) or none
+    cfg.mixture.appearance, cfg.mixture.state_mask_weight = ("type", 0.3) if split else ("slot", 0.0)
+    cfg.dynamics.latent_weight, cfg.dvae.foreground_weight = (2.0, 5.0) if split else (0.0, 1.0)
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
@@ -310,11 +310,17 @@ def test_state_mask_decoder_reads_positions_as_coordinates():
     grid = coordinate_grid(4)
     assert grid.shape == (16, 2) and torch.allclose(grid[0], torch.tensor([-0.75, -0.75]))
     assert torch.allclose(grid[1], torch.tensor([-0.75, -0.25]))   # row-major like the tokens
-    dec = StateMaskDecoder(state_dim=5, grid=4, hidden=8)
+    dec = StateMaskDecoder(state_dim=5, grid=4)
     states = torch.randn(2, 3, 5)
-    assert dec(states).shape == (2, 3, 16)
+    logits = dec(states)
+    assert logits.shape == (2, 3, 16)
     perm = torch.tensor([2, 0, 1])
-    assert torch.allclose(dec(states[:, perm]), dec(states)[:, perm])   # per slot
+    assert torch.allclose(dec(states[:, perm]), logits[:, perm])         # per slot
+    # each slot's logits peak at the grid cell nearest its bump's centre, a linear map of s
+    centre = dec.bumps(states)["centre"]                                  # (2, 3, 2)
+    sigma = dec.bumps(states)["sigma"]
+    nearest = ((grid[None, None] - centre[:, :, None]) / sigma[:, :, None]).norm(dim=-1).argmin(-1)
+    assert torch.equal(logits.argmax(-1), nearest)
 
 
 @pytest.mark.parametrize("slot_grad", [0.0, 0.5])

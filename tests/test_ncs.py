@@ -282,3 +282,225 @@ def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monke
     assert "computed transitions" in capsys.readouterr().out
     # the code digest changes with the source
     assert code_digest("models") != code_digest("ncs/perception.py")
+
+
+# ------------------------------------------------------------------ slot states (Table 3, s)
+@pytest.fixture(scope="module")
+def position_graph(buffer):
+    """The oracle's graph on cube positions, the ground-truth stand-in for slot states."""
+    return graph_from_buffer(buffer, OraclePerception("position"), clusters=16)
+
+
+def test_ncs_config_state_error():
+    from ncs_lite.config import NCSConfig, ncs_config
+    from ncs_lite.ncs.graph import METRICS_BY_STATE
+
+    assert NCSConfig().state == "mask" and ncs_config(["ncs.state=slot"]).state == "slot"
+    with pytest.raises(ValueError, match=r"^ncs\.state must be one of 'mask', 'slot', got 'pixel'$"):
+        ncs_config(state="pixel")
+    with pytest.raises(ValueError, match=r"ncs\.state must be one of 'mask', 'slot', got 'Slot'"):
+        ncs_config(["ncs.state=Slot"])
+    for state in METRICS_BY_STATE:                     # config's states are Table 3's columns
+        NCSConfig(state=state).validate()
+    assert len(METRICS_BY_STATE) == 2
+
+
+def test_slot_graph_binds_with_sqeuclidean():
+    """Three slot states A = (1, 0), B = (0, 1), C = (2, 0); moves A -> B and B -> C. Under
+    cosine A and C are one direction; the slot graph's squared Euclidean tells them apart."""
+    a, b, c = torch.tensor([1.0, 0]), torch.tensor([0, 1.0]), torch.tensor([2.0, 0])
+    still = torch.tensor([-1.0, -1.0])                 # the other entity never moves
+    st = torch.stack([torch.stack([a, still]), torch.stack([still, b])] * 4)      # (8, 2, 2)
+    st1 = torch.stack([torch.stack([b, still]), torch.stack([still, c])] * 4)
+    actions = np.array([[1.0] * 6, [2.0] * 6] * 4, np.float32)
+    graph = build_graph(st, st1, actions, clusters=3, state="slot", true_entity=np.array([0, 1] * 4))
+    assert graph.bind_metric == "sqeuclidean" and graph.state == "slot"
+    assert graph.info["metrics"] == {"isolate": "cosine", "cluster": "sqeuclidean", "bind": "sqeuclidean"}
+    assert graph.info["coverage"] == 1.0
+    na, nb, nc = graph.bind(torch.stack([a, b, c])).tolist()
+    assert len({na, nb, nc}) == 3
+    assert graph.bind(torch.tensor([[1.8, 0.0], [1.1, 0.0]])).tolist() == [nc, na]
+    np.testing.assert_array_equal(graph.action(nb, nc), np.full(6, 2.0, np.float32))
+    assert build_graph(st, st1, actions, clusters=3).bind_metric == "cosine"   # the mask column
+    # the loaded graph keeps its state; a graph without one (written before it was recorded) is a mask graph
+    assert TransitionGraph(graph.centroids, "cosine", {}, {}).state == "mask"
+
+
+def test_agent_on_slot_graph_ranks_by_cosine_and_binds_sqeuclidean():
+    """select-constraint ranks by the isolate (cosine) distance, bind uses the graph's metric:
+    the goal (2.2, 0) binds to C, so the agent takes the edge B -> C; a perception of
+    another kind of state is refused."""
+    from collections import Counter
+
+    import gymnasium as gym
+
+    from ncs_lite.ncs.perception import Entities
+    from ncs_lite.ncs.policy import NCSAgent
+
+    centroids = torch.tensor([[1.0, 0], [0, 1.0], [2.0, 0]])          # A, B, C
+    graph = TransitionGraph(centroids, "sqeuclidean", {(1, 2): Counter({(2.0,) * 6: 1})}, {"state": "slot"})
+    types = torch.eye(2)
+    current = Entities(types, torch.tensor([[1.0, 0], [0, 1.0]]))    # pair 0 at A, pair 1 at B
+    goal = Entities(types, torch.tensor([[1.1, 0], [2.2, 0]]))       # A again; C
+
+    class Fixed:
+        graph_state = "slot"
+
+        def current(self, obs, info):
+            return current
+
+        def goal(self, obs, info):
+            return goal
+
+    agent = NCSAgent(graph, Fixed(), gym.spaces.Box(-1, 1, (6,)), seed=0)
+    agent.reset(None, None)
+    action, was_random = agent.act(None, None)
+    last = agent.last
+    assert not was_random and last["selected"] == 1 and (last["src"], last["dst"]) == (1, 2)
+    np.testing.assert_array_equal(action, np.full(6, 2.0, np.float32))
+    np.testing.assert_allclose(last["raw_distances"], [0.0, 1.0], atol=1e-6)   # cosine, not Euclidean
+    assert last["src_nodes"].tolist() == [0, 1] and last["dst_nodes"].tolist() == [0, 2]
+    assert last["same_node"].tolist() == [True, False] and last["probabilities"].tolist() == [0.0, 1.0]
+    Fixed.graph_state = "mask"
+    with pytest.raises(ValueError, match="built on 'slot' states but the agent would read 'mask'"):
+        NCSAgent(graph, Fixed(), gym.spaces.Box(-1, 1, (6,)), seed=0)
+
+
+def test_oracle_position_state(buffer, position_graph):
+    """Positions: D = 3, every move isolated and every cell-to-cell move an edge."""
+    from ncs_lite.ncs.graph import isolate_distance
+
+    perception = OraclePerception("position")
+    assert perception.graph_state == "slot" and OraclePerception().graph_state == "mask"
+    assert perception.describe()["state"] == "position" != OraclePerception().describe()["state"]
+    st, st1, actions, moved = perception.transitions(buffer)
+    assert st.shape == (600 * 4, 4, 3)
+    torch.testing.assert_close(st[5], torch.as_tensor(buffer["positions"][1, 1]))   # episode 1, t = 1
+    assert position_graph.bind_metric == "sqeuclidean" and position_graph.state == "slot"
+    assert position_graph.info["coverage"] == 1.0 and position_graph.num_edges == 240
+    # why z stays in the state: (x, y) alone has no cosine distance along a ray through the
+    # grid's centre, so such a move would not be isolated (coverage < 1)
+    p, q = torch.tensor([0.05, 0.05, 0.03]), torch.tensor([0.15, 0.15, 0.03])
+    assert isolate_distance(p[:2], q[:2]) < 1e-6 < isolate_distance(p, q)
+    with pytest.raises(ValueError, match="oracle state must be one of \\['mask', 'position'\\], got 'slot'"):
+        OraclePerception("slot")
+    with pytest.raises(ValueError, match="does not match the perception's 'slot'"):
+        graph_from_buffer(buffer, perception, clusters=16, state="mask")
+
+
+def test_oracle_position_solves_tasks_random_does_not(position_graph):
+    from ncs_lite.config import NCSConfig
+
+    tasks = TaskSet(num_objects=5, episodes=8, seed=3)
+    slot = NCSConfig(state="slot")
+    oracle = summarize(evaluate(agent_factory("ncs-oracle", graph=position_graph, ncs=slot), tasks, "o"))[0]
+    rand = summarize(evaluate(agent_factory("random"), tasks, "random"))[0]
+    assert oracle["success"] == 1.0 > rand["success"]
+    assert oracle["mean_steps"] == 5 and oracle["random_fraction"] == 0     # one move per cube
+    partial = TaskSet(num_objects=6, goal="partial", num_constrained=3, episodes=4)
+    s = summarize(evaluate(agent_factory("ncs-oracle", graph=position_graph, ncs=slot), partial, "o"))[0]
+    assert s["success"] == 1.0 and s["mean_steps"] == 3
+    with pytest.raises(ValueError, match="built on 'slot' states but the agent would read 'mask'"):
+        agent_factory("ncs-oracle", graph=position_graph)       # default ncs.state = mask
+
+
+def test_state_reaches_perception_and_cache_keys(position_graph, oracle_graph, monkeypatch):
+    from types import SimpleNamespace
+
+    import ncs_lite.cache
+    from ncs_lite.config import NCSConfig
+    from ncs_lite.evaluation import evaluate_method, learned_perception
+
+    model = SimpleNamespace(cfg=SimpleNamespace(slots=SimpleNamespace(num_slots=3)))
+    assert learned_perception(model, 4, NCSConfig(state="slot")).state == "slot"
+    assert learned_perception(model, 4).state == "mask"
+    keys = []
+    monkeypatch.setattr(ncs_lite.cache, "cached", lambda name, compute, **key: keys.append(key) or [])
+    tasks = TaskSet(episodes=1)
+    evaluate_method("ncs", tasks, graph=position_graph, model=torch.nn.Linear(1, 1), ncs=NCSConfig(state="slot"))
+    evaluate_method("ncs", tasks, graph=oracle_graph, model=torch.nn.Linear(1, 1), ncs=NCSConfig())
+    evaluate_method("ncs-oracle", tasks, graph=position_graph, ncs=NCSConfig(state="slot"))
+    evaluate_method("ncs-oracle", tasks, graph=oracle_graph)
+    assert [k["state"] for k in keys] == ["slot", "mask", "slot", "mask"]
+    assert keys[0]["ncs"]["state"] == "slot" and keys[1]["ncs"]["state"] == "mask"
+    assert keys[0]["ncs"] != keys[1]["ncs"] and keys[2] != keys[3]
+
+
+def test_cli_slot_state_and_mismatch(tmp_path, capsys, monkeypatch):
+    import json
+
+    from ncs_lite.__main__ import main
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path / "cache"))
+    collect(tmp_path / "buf", episodes=30, seed=0)
+    data = ["--data", str(tmp_path / "buf"), "--clusters", "16"]
+    slot, mask = str(tmp_path / "slot.pt"), str(tmp_path / "mask.pt")
+    assert main(["graph", "--oracle", *data, "--state", "slot", "--out", slot]) == 0
+    built_slot = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert built_slot["state"] == "slot" and built_slot["coverage"] == 1.0
+    g = TransitionGraph.load(slot)
+    assert (g.state, g.bind_metric, g.centroids.shape[1]) == ("slot", "sqeuclidean", 3)
+    assert g.info["ncs"]["state"] == "slot" and g.info["perception_state"] == "position"
+    assert main(["graph", "--oracle", *data, "--set", "ncs.state=mask", "--out", mask]) == 0
+    built_mask = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert TransitionGraph.load(mask).state == built_mask["state"] == "mask"
+    # ground truth either way: the same 16 cells, the same cell-to-cell moves
+    assert built_slot["edges"] == built_mask["edges"] == TransitionGraph.load(mask).num_edges
+    run = ["evaluate", "--method", "ncs-oracle", "--num-objects", "3", "--episodes", "2"]
+    # without --state the agent reads the graph's state
+    assert main([*run, "--graph", slot]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["episodes"] == 2
+    assert main([*run, "--graph", slot, "--state", "slot"]) == 0
+    capsys.readouterr()
+    # a state the graph was not built on is refused, in one line naming both
+    for graph, flag, built in ((slot, ["--state", "mask"], "slot"), (mask, ["--state", "slot"], "mask"),
+                               (mask, ["--set", "ncs.state=slot"], "mask")):
+        assert main([*run, "--graph", graph, *flag]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and len(captured.err.strip().splitlines()) == 1
+        assert f"--graph {graph}: the graph was built on {built!r} states" in captured.err
+    # a graph written before the state was recorded is a mask graph
+    sd = torch.load(mask, weights_only=True)
+    del sd["info"]["state"]
+    torch.save(sd, tmp_path / "old.pt")
+    assert main([*run, "--graph", str(tmp_path / "old.pt"), "--state", "slot"]) == 2
+    assert "built on 'mask' states" in capsys.readouterr().err
+    assert main([*run, "--graph", str(tmp_path / "old.pt")]) == 0
+    capsys.readouterr()
+    assert main(["graph", "--oracle", *data, "--state", "pixel", "--out", str(tmp_path / "x.pt")]) == 2
+    assert "ncs.state must be one of 'mask', 'slot', got 'pixel'" in capsys.readouterr().err
+
+
+def test_learned_slot_states_end_to_end(tmp_path):
+    """An untrained `ci` dSLATE (no training: only the code path): slot states are the state
+    half s of the slot, the graph on them binds with squared Euclidean, and the `ncs` agent
+    acts on them."""
+    from ncs_lite.config import NCSConfig, get_preset
+    from ncs_lite.models import DSlate
+    from ncs_lite.ncs.perception import DSlatePerception
+
+    torch.manual_seed(0)
+    model = DSlate(get_preset("ci")).eval()
+    state_dim = model.cfg.slots.state_dim
+    collect(tmp_path / "buf", episodes=3, seed=0)
+    buf = load_buffer(tmp_path / "buf")
+    st, st1, actions, _ = DSlatePerception(model, iterations=2, state="slot", restarts=1).transitions(buf)
+    assert st.shape == (3 * 4, 3, state_dim)
+    expected = model.infer_video(buf["frames"], iterations=2).states[:, 1:].flatten(0, 1)
+    torch.testing.assert_close(st1, expected.float())
+    graph = build_graph(st, st1, actions, clusters=4, state="slot")
+    assert graph.bind_metric == "sqeuclidean" and graph.centroids.shape == (4, state_dim)
+    ncs = NCSConfig(state="slot", restarts=1, iterations=2)
+    tasks = TaskSet(num_objects=2, episodes=1, horizon_multiplier=1.0)
+    env = tasks.make_env()
+    try:
+        agent = agent_factory("ncs", graph=graph, model=model, ncs=ncs)(env)
+        obs, info = env.reset(seed=0)
+        agent.reset(obs, info)
+        agent.act(obs, info)
+    finally:
+        env.close()
+    assert agent.perception.state == "slot" and agent.last["current"].states.shape == (3, state_dim)
+    assert agent.last["src_nodes"].shape == agent.last["raw_distances"].shape == (3,)   # 3 slots each
+    with pytest.raises(ValueError, match="built on 'slot' states but the agent would read 'mask'"):
+        agent_factory("ncs", graph=graph, model=model)

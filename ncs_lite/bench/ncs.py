@@ -2,8 +2,9 @@
 
 Measured for the oracle (ground-truth entities: the planning cost alone) and, when the
 shipped dSLATE checkpoint is present, for learned NCS (slot inference with 7 iterations
-included) on 4- and 7-object scenes; the bare `model.infer` of one image, measured in the
-same run, is the reference that tells how much of a decision is perception.
+included) on 4- and 7-object scenes, on mask states and on slot states (`--state slot`);
+the bare `model.infer` of one image, measured in the same run, is the reference that tells
+how much of a decision is perception.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ def _per_call(fn, n: int) -> float:
 def run(steps: int = 50) -> dict:
     from ..inference import SHIPPED_CHECKPOINT, load_dslate
     from ..data import cached_buffer, load_buffer
+    from ..config import NCSConfig
     from ..evaluation import TaskSet, agent_factory
     from ..ncs.graph import graph_from_buffer
     from ..ncs.perception import DSlatePerception, OraclePerception
@@ -31,9 +33,11 @@ def run(steps: int = 50) -> dict:
     oracle_graph = graph_from_buffer(buffer, OraclePerception(), clusters=30)
     ckpt = SHIPPED_CHECKPOINT
     model = load_dslate(ckpt) if ckpt.exists() else None
-    learned_graph = None
+    learned = {}
     if model is not None:
-        learned_graph = graph_from_buffer(load_buffer(cached_buffer(200)), DSlatePerception(model), clusters=30)
+        small = load_buffer(cached_buffer(200))
+        learned = {state: graph_from_buffer(small, DSlatePerception(model, state=state), clusters=30)
+                   for state in ("mask", "slot")}
     out = {}
     for k in (4, 7):
         env = TaskSet(num_objects=k).make_env()
@@ -42,10 +46,12 @@ def run(steps: int = 50) -> dict:
         agent = agent_factory("ncs-oracle", graph=oracle_graph)(env)
         agent.reset(obs, info)
         row["oracle_ms_per_decision"] = 1e3 * _per_call(lambda: agent.act(obs, info), steps)
-        if model is not None:
-            agent = agent_factory("ncs", graph=learned_graph, model=model)(env)
+        for state, graph in learned.items():
+            agent = agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state=state))(env)
             agent.reset(obs, info)
-            row["ncs_ms_per_decision"] = 1e3 * _per_call(lambda: agent.act(obs, info), steps)
+            key = "ncs_ms_per_decision" if state == "mask" else "ncs_slot_ms_per_decision"
+            row[key] = 1e3 * _per_call(lambda: agent.act(obs, info), steps)
+        if model is not None:
             # the agent's own slot inference (7 iterations, its restarts), one image
             row["slot_inference_ms"] = 1e3 * _per_call(lambda: agent.perception.current(obs), steps)
             row["restarts"] = agent.perception.restarts

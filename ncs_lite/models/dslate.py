@@ -111,7 +111,7 @@ class DSlate(nn.Module):
         self.mixture = (MixtureDecoder(sc.slot_dim, mix_grid, cfg.image_size // mix_grid, mx.hidden,
                                        mx.alpha, mx.appearance, sc.type_dim)
                         if mx.weight > 0 else None)
-        self.state_masks = (StateMaskDecoder(sc.state_dim, cfg.mask_grid, mx.hidden)
+        self.state_masks = (StateMaskDecoder(sc.state_dim, cfg.mask_grid)
                             if mx.state_mask_weight > 0 else None)
 
     # ------------------------------------------------------------------ input checks

@@ -34,6 +34,13 @@ CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacki
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 
 
+def isolate_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Table 3's isolate distance d, the cosine distance 1 - cos(a, b) over the last axis:
+    (..., D), (..., D) -> (...). The same d for both state kinds; select-constraint ranks
+    goal constraints with it too (`policy.constraint_distances`)."""
+    return 1 - torch.nn.functional.cosine_similarity(a.float(), b.float(), dim=-1, eps=1e-8)
+
+
 def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
     """Index of the moved entity per transition: argmax_k cosine distance, (M,) int64.
 
@@ -42,8 +49,7 @@ def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
     if states_t.shape != states_t1.shape or states_t.ndim != 3:
         raise ValueError("states_t and states_t1 must both have shape (M, K, D), got "
                          f"{tuple(states_t.shape)} and {tuple(states_t1.shape)}")
-    cos = torch.nn.functional.cosine_similarity(states_t.float(), states_t1.float(), dim=-1, eps=1e-8)
-    return (1 - cos).argmax(dim=1)
+    return isolate_distance(states_t, states_t1).argmax(dim=1)
 
 
 @dataclass
@@ -65,6 +71,20 @@ class TransitionGraph:
     @property
     def num_edges(self) -> int:
         return len(self.edges)
+
+    @property
+    def state(self) -> str:
+        """The kind of entity state the graph was built on (a METRICS_BY_STATE key). Graphs
+        written before `build_graph` recorded it were all built on masks."""
+        return self.info.get("state", "mask")
+
+    def check_state(self, state: str) -> None:
+        """ValueError unless an agent reading `state` states can act on this graph: its nodes
+        are centroids of one kind of state, bound with that kind's metric."""
+        if state != self.state:
+            raise ValueError(f"the graph was built on {self.state!r} states but the agent would read "
+                             f"{state!r} states: evaluate with --state {self.state} (ncs.state), or "
+                             f"build the graph with `python -m ncs_lite graph --state {state}`")
 
     def bind(self, states: torch.Tensor) -> torch.Tensor:
         """Node of each state (..., D) -> (...) int64, nearest centroid under `bind_metric`."""
@@ -179,12 +199,20 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
 
 
 def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
-                      state: str = "mask") -> TransitionGraph:
-    """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it."""
+                      state: str | None = None) -> TransitionGraph:
+    """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it.
+
+    `state` (the Table 3 column) defaults to the perception's own (`graph_state`, "mask" for
+    a perception without one); a different one is refused, since its metrics would not fit."""
+    own = getattr(perception, "graph_state", None)
+    if state is None:
+        state = own or "mask"
+    elif own is not None and state != own:
+        raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
     states_t, states_t1, actions, true_entity = perception.transitions(buffer)
     return build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
                        true_entity=true_entity)
 
 
 __all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
-           "isolate"]
+           "isolate", "isolate_distance"]

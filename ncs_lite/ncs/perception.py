@@ -1,15 +1,17 @@
 """Entities from observations: what NCS sees of a scene.
 
 An entity is a pair (type z, state s). The learned perception reads them off dSLATE's slots
-(state = the slot-attention mask for block-rearrange, Table 3); the oracle reads them off
-the environment's ground truth (type = colour, state = the object's segmentation mask), so
-the same graph and policy code runs on both and the gap between them is the cost of the
-learned representation.
+(state = the slot-attention mask, block-rearrange, or the state half s of the slot,
+robogym-rearrange: Table 3's two columns); the oracle reads them off the environment's
+ground truth (type = colour, state = the object's segmentation mask, or its position as the
+stand-in for s), so the same graph and policy code runs on both and the gap between them is
+the cost of the learned representation.
 
-Masks are average-pooled to 16x16 = the dVAE token grid (64 / 4), so oracle and learned
-states share one feature space of D = 256. `Entities.masks` keeps the full-resolution masks
-the states were read from (for the learned perception: those of the restart it kept), so a
-figure draws exactly what the agent acted on.
+Mask states are average-pooled to 16x16 = the dVAE token grid (64 / 4), so oracle and
+learned mask states share one feature space of D = 256 (slot states: D = the model's state
+dim; oracle positions: D = 3). `Entities.masks` keeps the full-resolution masks of the
+entities (for the learned perception: those of the restart it kept; for mask states, the
+masks the states were pooled from), so a figure draws exactly what the agent acted on.
 """
 from __future__ import annotations
 
@@ -28,8 +30,9 @@ RESTARTS = 8
 
 class Entities(NamedTuple):
     """K entities of one image: types (K, Dz), states (K, D) and, when the perception has
-    them, the masks (K, H, W) the states were pooled from (float, summing to 1 over K for
-    the learned perception; 0/1 per object for the oracle)."""
+    them, the masks (K, H, W) of the entities (float, summing to 1 over K for the learned
+    perception; 0/1 per object for the oracle). With mask states, `states` are these masks
+    pooled; with slot or position states, the masks only show where the entities are."""
     types: torch.Tensor
     states: torch.Tensor
     masks: torch.Tensor | None = None
@@ -45,29 +48,67 @@ def pool_masks(masks, grid: int = STATE_GRID) -> torch.Tensor:
     return pooled.reshape(*lead, grid * grid)
 
 
+# The oracle's ground-truth stand-in for each kind of learned state (NCSConfig.state): the
+# segmentation mask for the attention mask, the object's position for the slot's state half
+ORACLE_STATES = {"mask": "mask", "slot": "position"}
+
+
 class OraclePerception:
-    """Ground-truth entities (for the `ncs-oracle` agent only: it reads `info`)."""
+    """Ground-truth entities (for the `ncs-oracle` agent only: it reads `info`).
+
+    type = the cube's colour; state = its segmentation mask pooled to the state grid
+    ("mask", D = 256) or its position ("position", D = 3), the ground truth that the slot's
+    state half s stands for. A graph of positions is built with the slot metrics (Table 3's
+    second column, `graph_state` "slot").
+
+    The position is the full (x, y, z) of `info["positions"]` (k, 3) / buffer["positions"]
+    (E, T, k, 3), z being the cubes' fixed resting height. isolate and select-constraint
+    measure cosine distance, which sees only directions: with (x, y) alone a cube moved
+    along a line through the grid's centre, e.g. (0.05, 0.05) -> (0.15, 0.15), would look
+    unmoved: isolate would lose its transition and select-constraint would never pick its
+    unsatisfied goal. The constant nonzero z makes the cosine distance 0 only for equal positions;
+    squared Euclidean (cluster, bind) ignores it.
+    """
 
     reads_ground_truth = True
 
+    def __init__(self, state: str = "mask"):
+        if state not in ORACLE_STATES.values():
+            raise ValueError(f"oracle state must be one of {sorted(ORACLE_STATES.values())}, got {state!r}")
+        self.state = state
+
+    @property
+    def graph_state(self) -> str:
+        """The Table 3 column (METRICS_BY_STATE key) of these states: "mask" or "slot"."""
+        return {v: k for k, v in ORACLE_STATES.items()}[self.state]
+
+    def _states(self, masks: torch.Tensor, positions) -> torch.Tensor:
+        if self.state == "mask":
+            return pool_masks(masks)
+        return torch.as_tensor(np.asarray(positions)).float()
+
     def current(self, obs, info) -> Entities:
         masks = torch.as_tensor(np.asarray(info["masks"])).float()
-        return Entities(torch.as_tensor(info["colors"]).float(), pool_masks(masks), masks)
+        return Entities(torch.as_tensor(info["colors"]).float(), self._states(masks, info["positions"]), masks)
 
     def goal(self, obs, info) -> Entities:
         keep = np.asarray(info["constrained"])
         masks = torch.as_tensor(np.asarray(info["goal_masks"])[keep]).float()
-        return Entities(torch.as_tensor(info["colors"][keep]).float(), pool_masks(masks), masks)
+        return Entities(torch.as_tensor(info["colors"][keep]).float(),
+                        self._states(masks, np.asarray(info["goal_positions"])[keep]), masks)
 
     def transitions(self, buffer: dict):
         """Buffer -> (states_t, states_t1 (M, k, D), actions (M, 6), true moved entity (M,))."""
-        states = pool_masks(buffer["masks"])                          # (E, T, k, D)
+        if self.state == "mask":
+            states = pool_masks(buffer["masks"])                      # (E, T, k, 256)
+        else:
+            states = torch.as_tensor(np.asarray(buffer["positions"])).float()   # (E, T, k, 3)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),
                 buffer["actions"].reshape(-1, 6), buffer["moved"].reshape(-1))
 
     def describe(self) -> dict:
         """What this perception's output depends on (a cache key, `buffer_transitions`)."""
-        return {"perception": "oracle", "grid": STATE_GRID}
+        return {"perception": "oracle", "state": self.state, "grid": STATE_GRID}
 
 
 class DSlatePerception:
@@ -92,6 +133,11 @@ class DSlatePerception:
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
         self.restarts = restarts
         self.state, self.batch_size = state, batch_size
+
+    @property
+    def graph_state(self) -> str:
+        """The Table 3 column (METRICS_BY_STATE key) of these states: "mask" or "slot"."""
+        return self.state
 
     def _entities(self, image) -> Entities:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots,

@@ -3,11 +3,13 @@
 Each step:
 1. **align** goal entities to current entities by type: the Hungarian algorithm
    (`scipy.optimize.linear_sum_assignment`) on Euclidean distances between types z.
-2. **select-constraint**: rank the aligned pairs by the isolate distance (cosine) between
-   current and goal states and sample one from the categorical distribution proportional
-   to those distances (the paper found sampling better than argmax).
-3. bind both states to nodes and take the action on the edge between them; with no such
-   edge take a random action.
+2. **select-constraint**: rank the aligned pairs by the isolate distance (cosine, Table 3,
+   for mask and slot states alike: `graph.isolate_distance`) between current and goal
+   states and sample one from the categorical distribution proportional to those distances
+   (the paper found sampling better than argmax).
+3. bind both states to nodes (`TransitionGraph.bind`, the graph's bind metric: cosine for
+   mask graphs, squared Euclidean for slot graphs) and take the action on the edge between
+   them; with no such edge take a random action.
 
 One decision the paper leaves open: a pair whose current and goal states bind to the *same*
 node counts as satisfied (its distance is set to 0 before sampling). The graph holds no
@@ -27,7 +29,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
-from .graph import TransitionGraph
+from .graph import TransitionGraph, isolate_distance
 
 
 def type_distances(current_types: torch.Tensor, goal_types: torch.Tensor) -> torch.Tensor:
@@ -41,15 +43,19 @@ def align(current_types: torch.Tensor, goal_types: torch.Tensor):
 
 
 def constraint_distances(current_states: torch.Tensor, goal_states: torch.Tensor) -> torch.Tensor:
-    """Cosine distance between aligned current and goal states, (P,) >= 0."""
-    cos = torch.nn.functional.cosine_similarity(current_states.float(), goal_states.float(), dim=-1, eps=1e-8)
-    return (1 - cos).clamp(min=0)
+    """The isolate distance (cosine) between aligned current and goal states, (P,) >= 0."""
+    return isolate_distance(current_states, goal_states).clamp(min=0)
 
 
 class NCSAgent:
-    """Neural Constraint Satisfaction on a transition graph, with a given perception."""
+    """Neural Constraint Satisfaction on a transition graph, with a given perception.
+
+    A perception that names its kind of state (`graph_state`) must read the kind the graph
+    was built on (`TransitionGraph.check_state`)."""
 
     def __init__(self, graph: TransitionGraph, perception, action_space, seed: int = 0):
+        if getattr(perception, "graph_state", None) is not None:
+            graph.check_state(perception.graph_state)
         self.graph, self.perception, self.action_space = graph, perception, action_space
         self.rng = np.random.default_rng(seed)
         self.action_space.seed(int(seed))
@@ -68,8 +74,8 @@ class NCSAgent:
           current, goal        the Entities acted on (types, states, masks: the restart kept)
           type_distances       (G, C) align's cost matrix
           goal_index, current_index   (P,) the alignment
-          raw_distances        (P,) cosine distance of each pair's states
-          src_nodes, dst_nodes (P,) node of each pair's current and goal state
+          raw_distances        (P,) isolate (cosine) distance of each pair's states
+          src_nodes, dst_nodes (P,) node of each pair's current and goal state (graph.bind)
           same_node            (P,) bool, pairs counted as satisfied (distance set to 0)
           distances            (P,) the distances sampled from (raw, 0 where same_node)
           probabilities        (P,) distances / their sum (all 0 when nothing is left)
@@ -109,8 +115,9 @@ class NCSAgent:
 def aligned_masks(last: dict) -> tuple[torch.Tensor, torch.Tensor]:
     """The masks of a recorded decision in pair order: (goal (P, H, W), current (P, H, W)).
 
-    Pair j's two masks are the ones whose pooled states gave `last["raw_distances"][j]` and
-    bound to `src_nodes[j]`, `dst_nodes[j]`: what an align figure should draw."""
+    Pair j's two masks are those of the entities whose states gave `last["raw_distances"][j]`
+    and bound to `src_nodes[j]`, `dst_nodes[j]` (with mask states, the masks those states
+    were pooled from): what an align figure should draw."""
     cur, goal = last["current"], last["goal"]
     if cur.masks is None or goal.masks is None:
         raise ValueError("this perception records no masks (Entities.masks is None)")

@@ -1,0 +1,92 @@
+"""The type/state split's metrics (`ncs_lite.metrics.factorization_scores`, `ridge_probe`).
+
+A model whose slots are built from the ground truth (type = the colour, state = the
+position, dynamics = move the slot at the pick point) must score perfectly; one whose
+states are noise and whose dynamics moves a random slot must score at chance."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from ncs_lite.data import cached_buffer, load_buffer
+from ncs_lite.metrics import factorization_scores, ridge_probe
+from ncs_lite.models.dslate import SlotInference
+
+
+@pytest.fixture(scope="module")
+def buffer():
+    return load_buffer(cached_buffer(16, num_objects=3, seed=1000))
+
+
+class GroundTruthModel:
+    """A stand-in dSLATE whose slot k of a frame is object k (the floor last): z = the
+    colour, s = the position (or noise), masks = the true masks; `predict` adds the action's
+    move to the state nearest its pick point (or to a random slot)."""
+
+    type_dim = 3
+    can_render = False
+    device = torch.device("cpu")
+
+    def __init__(self, buffer, broken=False):
+        self.buffer, self.broken = buffer, broken
+        self.rng = np.random.default_rng(0)
+        self.by_frame = {buffer["frames"][e, 0].tobytes(): e for e in range(len(buffer["frames"]))}
+
+    def infer_video(self, videos, num_slots=None, restarts=1, seed=0):
+        b = self.buffer
+        eps = [self.by_frame[np.asarray(v[0]).tobytes()] for v in videos]
+        colours = torch.as_tensor(b["colors"][eps]).float()                   # (B, k, 3)
+        pos = torch.as_tensor(b["positions"][eps][..., :2]).float()           # (B, T, k, 2)
+        if self.broken:
+            pos = torch.as_tensor(self.rng.normal(size=pos.shape)).float()
+        B, T, k = pos.shape[:3]
+        z = torch.cat([colours, torch.zeros(B, 1, 3)], 1)[:, None].expand(B, T, k + 1, 3)
+        s = torch.cat([pos, torch.full((B, T, 1, 2), 9.0)], 2)                # the floor far off
+        masks = torch.as_tensor(b["masks"][eps]).float()                      # (B, T, k, H, W)
+        floor = 1 - masks.sum(2, keepdim=True).clamp(max=1)
+        masks = torch.cat([masks, floor], 2)
+        slots = torch.cat([z, s], -1)
+        return SlotInference(slots, z, s, masks, masks.flatten(-2))
+
+    def predict(self, slots, actions):
+        nxt = slots.clone()
+        for i in range(len(slots)):
+            s = slots[i, :, 3:]
+            j = (self.rng.integers(len(s)) if self.broken
+                 else int((s - actions[i, :2]).norm(dim=1).argmin()))
+            nxt[i, j, 3:] = s[j] + actions[i, 3:5]
+        return nxt
+
+    def reconstruct(self, images):
+        return torch.as_tensor(np.asarray(images)).float() / 255.0             # a perfect round trip
+
+
+def test_ground_truth_slots_score_perfectly(buffer):
+    r = factorization_scores(GroundTruthModel(buffer), buffer)
+    assert r["type_invariance"] == 0.0                         # z never moves
+    assert r["identity_from_z"] == 1.0
+    assert r["position_r2_from_s"] > 0.999
+    assert r["position_r2_from_z"] < 0.2                       # colour says nothing of place
+    assert r["moved_slot_accuracy"] == 1.0
+    assert r["predicted_position_r2"] > 0.99 > r["no_change_position_r2"]
+    assert r["dvae_floor_max"] == 0.0
+    assert "render_fg_error" not in r                          # the stand-in cannot render
+    assert r["transitions"] == 16 * 4 and r["slots"] == 4
+
+
+def test_noise_states_and_a_random_dynamics_score_at_chance(buffer):
+    r = factorization_scores(GroundTruthModel(buffer, broken=True), buffer)
+    assert r["position_r2_from_s"] < 0.2
+    assert r["moved_slot_accuracy"] < 0.5                      # chance is 1/4
+    assert r["identity_from_z"] == 1.0                         # the types are still the colours
+
+
+def test_ridge_probe_reads_a_linear_map_and_not_noise():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(400, 6))
+    y = x[:, :2] @ np.array([[1.0, -2.0], [0.5, 3.0]]) + 0.01 * rng.normal(size=(400, 2))
+    assert ridge_probe(x[:200], y[:200], x[200:], y[200:]) > 0.99
+    assert ridge_probe(x[:200], rng.normal(size=(200, 2)), x[200:], rng.normal(size=(200, 2))) < 0.1
+    with pytest.raises(ValueError, match="ridge_probe needs"):
+        ridge_probe(x[:1], y[:1], x, y)
