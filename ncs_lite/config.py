@@ -48,6 +48,9 @@ class SlotConfig:
     encoder: str = "tokens"     # slot-attention input: "tokens" = dVAE token embeddings (SLATE,
     #                             the paper) or "cnn" = a CNN over pixels (STEVE), see pixel_encoder.py
     encoder_stride: int = 2     # "cnn" only: features and masks at image_size / stride
+    position_state: bool = False  # the last 4 state features = centroid and spread of the
+    #                             slot's attention (Invariant Slot Attention's slot position;
+    #                             not in the paper): s then holds where its object is
 
     @property
     def slot_dim(self) -> int:
@@ -172,6 +175,9 @@ class DSlateConfig:
                              f"({self.slots.encoder_stride})")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
+        if self.slots.position_state and self.slots.state_dim < 5:
+            raise ValueError("slots.position_state fills 4 state features with where the slot attends "
+                             f"and needs slots.state_dim >= 5, got {self.slots.state_dim}")
         if self.mixture.appearance not in ("slot", "type"):
             raise ValueError(f"mixture.appearance must be 'slot' or 'type', got {self.mixture.appearance!r}")
         if self.mixture.appearance == "type" and self.mixture.alpha != "attention":
@@ -269,12 +275,13 @@ def _reduced() -> DSlateConfig:
         name="reduced",
         dvae=DVAEConfig(vocab_size=64, hidden=64, tau_steps=600, lr=3e-3, foreground_weight=5.0),
         slots=SlotConfig(num_slots=5, iterations=3, eval_iterations=7, heads=1,
-                         type_dim=32, state_dim=32, mlp_hidden=128, encoder="cnn", encoder_stride=2),
+                         type_dim=32, state_dim=32, mlp_hidden=128, encoder="cnn", encoder_stride=2,
+                         position_state=True),
         decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5,
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0, latent_weight=1.0),
         mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0,
-                              appearance="type", state_mask_weight=0.5),
+                              appearance="type", state_mask_weight=1.0),
         train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250, polish_steps=600, polish_lr=2e-4,
@@ -288,7 +295,8 @@ def _ci() -> DSlateConfig:
         name="ci",
         dvae=DVAEConfig(vocab_size=16, hidden=16, tau_steps=20, lr=1e-3, foreground_weight=5.0),
         slots=SlotConfig(num_slots=3, iterations=2, eval_iterations=3, heads=1,
-                         type_dim=8, state_dim=8, mlp_hidden=16, encoder="cnn", encoder_stride=2),
+                         type_dim=8, state_dim=8, mlp_hidden=16, encoder="cnn", encoder_stride=2,
+                         position_state=True),
         decoder=DecoderConfig(layers=1, heads=2, hidden=16, dropout=0.1, token_dropout=0.25,
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1, latent_weight=1.0),

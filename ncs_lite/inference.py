@@ -18,12 +18,14 @@ from .models.dslate import DSlate
 from .training import read_checkpoint, resolve_device
 from .utils import PACKAGE_DIR, cache_dir
 
-__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH"]
+__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH", "SHIPPED_SLOT_GRAPH"]
 
 # The `reduced` block-rearrange checkpoint shipped with the kit (see README for the command).
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
 # its NCS graph (`python -m ncs_lite graph ... --clusters 30`, see README)
 SHIPPED_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced.pt"
+# its graph on slot states (`graph ... --state slot`: Table 3's second column)
+SHIPPED_SLOT_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced_slot.pt"
 # 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
 

@@ -277,7 +277,7 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
 
 @torch.no_grad()
 def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
-                         batch_size: int = 50) -> dict:
+                         batch_size: int = 50, matched: dict | None = None) -> dict:
     """How well a dSLATE splits slots into type z and state s, on held-out transitions.
 
     `buffer`: a loaded buffer (`ncs_lite.data.load_buffer`) the model was not trained on.
@@ -305,15 +305,16 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
                            each against the true next frame
       dvae_floor_by_colour {colour name: fraction of its pixels the dVAE round trip paints
                            nearer the floor than the colour}; dvae_floor_max its maximum
-    Plus the counts they rest on.
+    Plus the counts they rest on. `matched`: `matched_slots(model, buffer, restarts, seed)`
+    if the caller already has it (a notebook draws it too).
     """
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
-    f = matched_slots(model, buffer, restarts, seed, batch_size)
+    f = matched if matched is not None else matched_slots(model, buffer, restarts, seed, batch_size)
     E, T, k = true.shape[:3]
     K, Dz = k + 1, model.type_dim
-    slots, owner, z, s = f["slots"], f["owner"], f["z"], f["s"]
+    slots, owner, z = f["slots"], f["owner"], f["z"]
     pos, colour, colour_names = f["all_positions"], f["all_colours"], f["colour_names"]
-    e_idx, o_idx = f["episode"], f["object"]
+    e_idx = f["episode"]
     feats_z, feats_s, target = f["types"], f["states"], f["positions"]
     train = e_idx < E // 2
     test = ~train

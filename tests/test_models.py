@@ -167,6 +167,7 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     # the split's departures (look from z, masks from s, latent dynamics, dVAE weight) or none
     cfg.mixture.appearance, cfg.mixture.state_mask_weight = ("type", 0.3) if split else ("slot", 0.0)
     cfg.dynamics.latent_weight, cfg.dvae.foreground_weight = (2.0, 5.0) if split else (0.0, 1.0)
+    cfg.slots.position_state = split
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
@@ -193,7 +194,11 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     assert torch.equal(nxt[..., :Dz], r.types)
     vid = m.infer_video(v)
     assert vid.slots.shape == (2, 3, K, Dz + Ds) and vid.masks.shape == (2, 3, K, 64, 64)
-    if split:
+    if split:   # the last 4 state features are where each slot attends: centroid, spread
+        from ncs_lite.models.state_decoder import coordinate_grid
+        w = r.attention / r.attention.sum(-1, keepdim=True)
+        assert torch.allclose(r.states[..., -4:-2], w @ coordinate_grid(cfg.mask_grid), atol=1e-5)
+        assert (r.states[..., -2:] > 0).all()
         img = m.render(nxt)
         assert img.shape == (2, 64, 64, 3) and 0 <= img.min() and img.max() <= 1
         drawn = m.state_masks_of(r.slots)
