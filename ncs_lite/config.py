@@ -50,7 +50,8 @@ class SlotConfig:
     encoder_stride: int = 2     # "cnn" only: features and masks at image_size / stride
     position_state: bool = False  # the last 4 state features = centroid and spread of the
     #                             slot's attention (Invariant Slot Attention's slot position;
-    #                             not in the paper): s then holds where its object is
+    #                             not in the paper): s then holds where its object is. With
+    #                             state_dim 4 (`reduced`) that is all of s
 
     @property
     def slot_dim(self) -> int:
@@ -175,9 +176,9 @@ class DSlateConfig:
                              f"({self.slots.encoder_stride})")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
-        if self.slots.position_state and self.slots.state_dim < 5:
+        if self.slots.position_state and self.slots.state_dim < 4:
             raise ValueError("slots.position_state fills 4 state features with where the slot attends "
-                             f"and needs slots.state_dim >= 5, got {self.slots.state_dim}")
+                             f"and needs slots.state_dim >= 4, got {self.slots.state_dim}")
         if self.mixture.appearance not in ("slot", "type"):
             raise ValueError(f"mixture.appearance must be 'slot' or 'type', got {self.mixture.appearance!r}")
         if self.mixture.appearance == "type" and self.mixture.alpha != "attention":
@@ -275,7 +276,7 @@ def _reduced() -> DSlateConfig:
         name="reduced",
         dvae=DVAEConfig(vocab_size=64, hidden=64, tau_steps=600, lr=3e-3, foreground_weight=5.0),
         slots=SlotConfig(num_slots=5, iterations=3, eval_iterations=7, heads=1,
-                         type_dim=32, state_dim=32, mlp_hidden=128, encoder="cnn", encoder_stride=2,
+                         type_dim=32, state_dim=4, mlp_hidden=128, encoder="cnn", encoder_stride=2,
                          position_state=True),
         decoder=DecoderConfig(layers=2, heads=4, hidden=64, dropout=0.0, token_dropout=0.5,
                               slot_grad=0.0),

@@ -190,7 +190,7 @@ class DSlate(nn.Module):
         centre = w @ coords                                              # (B, K, 2)
         spread = (w @ coords.pow(2) - centre.pow(2)).clamp(min=1e-6).sqrt()
         where = torch.cat([centre, spread], -1).to(slots.dtype)
-        return torch.cat([slots[..., :-POSITION_FEATURES], where], -1)
+        return torch.cat([slots[..., :slots.shape[-1] - POSITION_FEATURES], where], -1)
 
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
