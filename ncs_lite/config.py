@@ -263,8 +263,16 @@ def _reduced() -> DSlateConfig:
       (`mixture.foreground_weight`): with a plain sum the floor's slot tends to paint the
       cube closest to the floor's colour (green);
     * 600 polish steps after the schedule (`train.polish_steps`): lr 2e-4, dVAE frozen,
-      foreground weight 20.
-    The dVAE, the decoder, the type/state split, the dynamics and their losses are the paper's.
+      foreground weight 20;
+    * the type/state split (issue 12; notebook 04 measures it): the state s is where the slot
+      attends, its attention's centroid and spread (`slots.position_state`, state_dim 4, as
+      in Invariant Slot Attention); the mixture decoder paints one look per slot from z alone
+      (`mixture.appearance = "type"`); a detached head draws each slot's mask from s
+      (`mixture.state_mask_weight`, so slots decode on their own: `DSlate.render`); the
+      dynamics also learns from a latent loss against frame t+1's states
+      (`dynamics.latent_weight`); the dVAE weights foreground pixels 5x
+      (`dvae.foreground_weight`: it coded every green pixel as floor).
+    The dVAE, the SLATE decoder, the dynamics' architecture and the paper's losses are kept.
 
     Each departure is one field, so its ablation is an override of this preset, e.g.
     `python -m ncs_lite reproduce seeds --set train.polish_steps=0` or

@@ -20,9 +20,8 @@ import torch
 from torch import nn
 
 from ..utils import seed_everything
-from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, as_buffer, check_buffer,
-                               check_channels, check_int, config_from_dict, mlp, observation_tensors,
-                               read_checkpoint, run_training)
+from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer, check_buffer,
+                               check_channels, check_int, load_policy, mlp, run_training, save_policy)
 
 KIND = "bc"
 
@@ -135,34 +134,16 @@ def mean_action_mse(buffer, action_space) -> float:
 
 def save_bc(path, model: BCPolicy, log: list[dict] | None = None):
     """A finished model (no optimizer state) as a `bc` checkpoint."""
-    from .goal_conditioned import save_checkpoint
-
-    return save_checkpoint(path, KIND, model, model.cfg, step=model.cfg.steps, log=log or [])
+    return save_policy(path, KIND, model, log)
 
 
 def load_bc(path) -> BCPolicy:
     """A BC model from a `bc` checkpoint (weights_only), in eval mode."""
-    ckpt = read_checkpoint(path, KIND)
-    cfg = config_from_dict(BCConfig, ckpt["config"])
-    sd = ckpt["model"]
-    model = BCPolicy(cfg, ActionBox(sd["box.low"], sd["box.high"]))
-    model.load_state_dict(sd)
-    model.log = ckpt["log"]
-    return model.eval()
+    return load_policy(path, KIND, BCConfig, BCPolicy)
 
 
-class BCAgent:
-    """The harness's interface around a trained `BCPolicy`: never a random action."""
-
-    def __init__(self, model: BCPolicy):
-        self.model = model.eval()
-
-    def reset(self, obs, info) -> None:
-        pass   # the goal image comes with every observation
-
-    def act(self, obs, info) -> tuple[np.ndarray, bool]:
-        image, goal = observation_tensors(obs)
-        return self.model.act(image, goal)[0].numpy().astype(np.float32), False
+class BCAgent(PolicyAgent):
+    """The harness's interface around a trained `BCPolicy`: its mean action, never random."""
 
 
 __all__ = ["BCAgent", "BCConfig", "BCPolicy", "BC_PRESETS", "bc_config", "bc_mse", "load_bc",

@@ -262,3 +262,34 @@ def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=No
 
 __all__ = ["ActionBox", "HindsightGoals", "PixelEncoder", "as_buffer", "check_buffer", "mlp",
            "observation_tensors", "read_checkpoint", "run_training", "save_checkpoint"]
+
+
+def save_policy(path, kind: str, model: nn.Module, log: list[dict] | None = None):
+    """A finished model (no optimizer state) as a `kind` checkpoint."""
+    return save_checkpoint(path, kind, model, model.cfg, step=model.cfg.steps, log=log or [])
+
+
+def load_policy(path, kind: str, config_cls, model_cls) -> nn.Module:
+    """A `model_cls(cfg, ActionBox)` from a `kind` checkpoint (weights_only), in eval mode."""
+    ckpt = read_checkpoint(path, kind)
+    cfg = config_from_dict(config_cls, ckpt["config"])
+    sd = ckpt["model"]
+    model = model_cls(cfg, ActionBox(sd["box.low"], sd["box.high"]))
+    model.load_state_dict(sd)
+    model.log = ckpt["log"]
+    return model.eval()
+
+
+class PolicyAgent:
+    """The harness's interface around a trained goal-conditioned policy (`model.act(image,
+    goal)`): its action every step, never a random one."""
+
+    def __init__(self, model: nn.Module):
+        self.model = model.eval()
+
+    def reset(self, obs, info) -> None:
+        pass   # the goal image comes with every observation
+
+    def act(self, obs, info):
+        image, goal = observation_tensors(obs)
+        return self.model.act(image, goal)[0].numpy().astype(np.float32), False

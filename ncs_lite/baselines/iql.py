@@ -34,14 +34,12 @@ import copy
 import math
 from dataclasses import dataclass, fields, replace
 
-import numpy as np
 import torch
 from torch import nn
 
 from ..utils import seed_everything
-from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, as_buffer, check_buffer,
-                               check_channels, check_int, config_from_dict, mlp, observation_tensors,
-                               read_checkpoint, run_training)
+from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer, check_buffer,
+                               check_channels, check_int, load_policy, mlp, run_training, save_policy)
 
 KIND = "iql"
 LOG_STD_RANGE = (-5.0, 2.0)
@@ -225,35 +223,17 @@ def train_iql(buffer, action_space, cfg: IQLConfig | None = None, *, out=None,
 
 
 def save_iql(path, model: IQLNetworks, log: list[dict] | None = None):
-    """A finished model (no optimizer state) as an `iql` checkpoint."""
-    from .goal_conditioned import save_checkpoint
-
-    return save_checkpoint(path, KIND, model, model.cfg, step=model.cfg.steps, log=log or [])
+    """A finished model (no optimizer state) as a `iql` checkpoint."""
+    return save_policy(path, KIND, model, log)
 
 
 def load_iql(path) -> IQLNetworks:
-    """An IQL model from an `iql` checkpoint (weights_only), in eval mode."""
-    ckpt = read_checkpoint(path, KIND)
-    cfg = config_from_dict(IQLConfig, ckpt["config"])
-    sd = ckpt["model"]
-    model = IQLNetworks(cfg, ActionBox(sd["box.low"], sd["box.high"]))
-    model.load_state_dict(sd)
-    model.log = ckpt["log"]
-    return model.eval()
+    """A IQL model from a `iql` checkpoint (weights_only), in eval mode."""
+    return load_policy(path, KIND, IQLConfig, IQLNetworks)
 
 
-class IQLAgent:
-    """The harness's interface around trained `IQLNetworks`: the policy's mean action."""
-
-    def __init__(self, model: IQLNetworks):
-        self.model = model.eval()
-
-    def reset(self, obs, info) -> None:
-        pass   # the goal image comes with every observation
-
-    def act(self, obs, info) -> tuple[np.ndarray, bool]:
-        image, goal = observation_tensors(obs)
-        return self.model.act(image, goal)[0].numpy().astype(np.float32), False
+class IQLAgent(PolicyAgent):
+    """The harness's interface around a trained `IQLNetworks`: its mean action, never random."""
 
 
 __all__ = ["IQLAgent", "IQLConfig", "IQLNetworks", "IQL_PRESETS", "advantage_weights", "expectile_loss",
