@@ -19,9 +19,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..utils import seed_everything
-from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer, check_buffer,
-                               check_channels, check_int, load_policy, mlp, run_training, save_policy)
+from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer,
+                               check_channels, check_int, load_policy, mlp, run_training, save_policy,
+                               training_setup)
 
 KIND = "bc"
 
@@ -90,13 +90,8 @@ def train_bc(buffer, action_space, cfg: BCConfig | None = None, *, out=None,
     Returns (model in eval mode, log: one {"step", "loss"} per step; loss = batch MSE in box
     units). `out`, `checkpoint_every`, `resume`: see `goal_conditioned.run_training`."""
     cfg = (cfg or BCConfig()).validate()
-    buffer = as_buffer(buffer)
-    box = ActionBox.from_space(action_space)
-    check_buffer(buffer, box)
-    seed_everything(cfg.seed)
-    model = BCPolicy(cfg, box)
+    model, box, goals = training_setup(buffer, action_space, cfg, BCPolicy)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    goals = HindsightGoals(buffer, cfg.seed)
 
     def step_fn(step: int) -> dict:
         b = goals.sample(step, cfg.batch_size)

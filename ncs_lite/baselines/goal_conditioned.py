@@ -293,3 +293,15 @@ class PolicyAgent:
     def act(self, obs, info):
         image, goal = observation_tensors(obs)
         return self.model.act(image, goal)[0].numpy().astype(np.float32), False
+
+
+def training_setup(buffer, action_space, cfg, build):
+    """What BC and IQL training share: the checked buffer, `build(cfg, box)`'s model (after
+    seeding) and the hindsight goal sampler. Returns (model, box, goals)."""
+    from ..utils import seed_everything
+
+    buffer = as_buffer(buffer)
+    box = ActionBox.from_space(action_space)
+    check_buffer(buffer, box)
+    seed_everything(cfg.seed)
+    return build(cfg, box), box, HindsightGoals(buffer, cfg.seed)

@@ -37,9 +37,9 @@ from dataclasses import dataclass, fields, replace
 import torch
 from torch import nn
 
-from ..utils import seed_everything
-from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer, check_buffer,
-                               check_channels, check_int, load_policy, mlp, run_training, save_policy)
+from .goal_conditioned import (ActionBox, PixelEncoder, PolicyAgent,
+                               check_channels, check_int, load_policy, mlp, run_training, save_policy,
+                               training_setup)
 
 KIND = "iql"
 LOG_STD_RANGE = (-5.0, 2.0)
@@ -200,13 +200,8 @@ def train_iql(buffer, action_space, cfg: IQLConfig | None = None, *, out=None,
     advantage weight, mean Q and V, and the batch's reward rate). `out`,
     `checkpoint_every`, `resume`: see `goal_conditioned.run_training`."""
     cfg = (cfg or IQLConfig()).validate()
-    buffer = as_buffer(buffer)
-    box = ActionBox.from_space(action_space)
-    check_buffer(buffer, box)
-    seed_everything(cfg.seed)
-    model = IQLNetworks(cfg, box)
+    model, box, goals = training_setup(buffer, action_space, cfg, IQLNetworks)
     optimizer = torch.optim.Adam(model.online_parameters(), lr=cfg.lr)
-    goals = HindsightGoals(buffer, cfg.seed)
 
     def step_fn(step: int) -> dict:
         losses = iql_losses(model, goals.sample(step, cfg.batch_size), cfg)

@@ -35,7 +35,7 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE
+from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE, edge_tensors
 from ..ncs.kmeans import assign, kmeans
 from ..utils import atomic_torch_save
 
@@ -153,12 +153,8 @@ class SetGraph:
         sets = torch.full((self.num_nodes, width), -1, dtype=torch.int64)
         for i, s in enumerate(self.sets):
             sets[i, :len(s)] = torch.tensor(s, dtype=torch.int64)
-        rows = [(s, d, a, n) for (s, d), c in sorted(self.edges.items()) for a, n in c.items()]
         return {"kind": GRAPH_KIND, "format": GRAPH_FORMAT, "centroids": self.centroids.float(),
-                "bind_metric": self.bind_metric, "sets": sets,
-                "edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
-                "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
-                "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64),
+                "bind_metric": self.bind_metric, "sets": sets, **edge_tensors(self.edges),
                 "info": dict(self.info)}
 
     def save(self, path: str | Path) -> Path:

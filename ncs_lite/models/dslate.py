@@ -400,8 +400,12 @@ class DSlate(nn.Module):
         over K (state_decoder.py); compare `infer(...).masks`, slot attention's own."""
         if self.state_masks is None:
             raise ValueError("this model has no state-mask decoder (mixture.state_mask_weight = 0)")
+        return self.upsample_masks(self._state_alpha(slots))
+
+    def _state_alpha(self, slots: torch.Tensor) -> torch.Tensor:
+        """Masks (B, K, N') on slot attention's grid drawn from the states of slots (B, K, D)."""
         logits = self.state_masks(slots[..., self.type_dim:].to(self.pos_emb.dtype))
-        return self.upsample_masks(logits.float().softmax(1))
+        return logits.float().softmax(1)
 
     @torch.no_grad()
     def render(self, slots: torch.Tensor) -> torch.Tensor:
@@ -416,8 +420,7 @@ class DSlate(nn.Module):
         if slots.ndim != 3 or slots.shape[-1] != self.slot_dim:
             raise ValueError(f"slots must have shape (B, K, {self.slot_dim}), got {tuple(slots.shape)}")
         slots = slots.to(self.pos_emb.dtype)
-        alpha = self.state_masks(slots[..., self.type_dim:]).float().softmax(1)   # (B, K, N')
-        patches, _ = self.mixture(slots, alpha)                        # (B, N', p*p*3)
+        patches, _ = self.mixture(slots, self._state_alpha(slots))     # (B, N', p*p*3)
         g = self.mixture.grid
         return unpatchify(patches, self.cfg.image_size // g, g).clamp(0, 1)
 

@@ -52,6 +52,15 @@ def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
     return isolate_distance(states_t, states_t1).argmax(dim=1)
 
 
+def edge_tensors(edges: dict) -> dict:
+    """{(src, dst): Counter{action: count}} -> "edge_index" (E, 2), "edge_action" (E, 6),
+    "edge_count" (E,) tensors, one row per (edge, action), in sorted order (for saving)."""
+    rows = [(s, d, a, n) for (s, d), c in sorted(edges.items()) for a, n in c.items()]
+    return {"edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
+            "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
+            "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64)}
+
+
 @dataclass
 class TransitionGraph:
     """Nodes (centroids) and action-labelled edges between them.
@@ -107,16 +116,8 @@ class TransitionGraph:
     # -------------------------------------------------------------- save/load
     def state_dict(self) -> dict:
         """Only tensors, strings and numbers: loads with torch.load(weights_only=True)."""
-        rows = [(s, d, a, n) for (s, d), c in sorted(self.edges.items()) for a, n in c.items()]
-        return {
-            "format": 1,
-            "centroids": self.centroids.float(),
-            "bind_metric": self.bind_metric,
-            "edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
-            "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
-            "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64),
-            "info": dict(self.info),
-        }
+        return {"format": 1, "centroids": self.centroids.float(), "bind_metric": self.bind_metric,
+                **edge_tensors(self.edges), "info": dict(self.info)}
 
     def save(self, path: str | Path) -> Path:
         atomic_torch_save(self.state_dict(), path)
