@@ -9,7 +9,7 @@ import sys
 from .training import add_run_arguments
 
 # Modules that add their own subcommand through `add_subcommand(subparsers)`.
-COMMAND_MODULES = ("ncs_lite.training", "ncs_lite.reproduce")
+COMMAND_MODULES = ("ncs_lite.training", "ncs_lite.baselines.runs", "ncs_lite.reproduce")
 
 
 def _collect(args):
@@ -55,30 +55,44 @@ def _graph(args):
 
 
 def _evaluate(args):
-    from .config import ncs_config, parse_override
-    from .evaluation import TaskSet, agent_factory, evaluate, summarize, write_csv
-    from .inference import load_dslate
+    from .baselines import MPC_PRESETS, SetGraph
+    from .baselines.runs import load_trained_policy
+    from .config import ncs_config, parse_override, section_config, split_overrides
+    from .evaluation import NEEDS, TaskSet, agent_factory, evaluate, summarize, write_csv
+    from .inference import load_dslate, shipped_asset
     from .ncs.graph import TransitionGraph
     from .utils import provenance
 
-    graph = TransitionGraph.load(args.graph) if args.graph else None
+    sections = split_overrides(args.overrides, ("ncs", "mpc"))
+    needs = NEEDS.get(args.method, ())
+    state = args.state or next((parse_override(o)[1] for o in sections["ncs"]
+                                if parse_override(o)[0] == "ncs.state"), "mask")
+    # without a path, a method runs from the shipped `reduced` assets of --env
+    paths = {"graph": args.graph, "model": args.checkpoint, "policy": args.policy}
+    for need in needs:
+        paths[need] = paths[need] or shipped_asset(args.env, args.method, need, state)
+    graph = None
+    if "graph" in needs:
+        graph = (SetGraph if args.method.startswith("nf") else TransitionGraph).load(paths["graph"])
     # the agent reads the kind of state its graph was built on: unless --state (or
     # --set ncs.state) says otherwise, and then the graph must agree (checked below)
-    asked = args.state is not None or any(parse_override(o)[0] == "ncs.state" for o in args.overrides)
-    cfg = ncs_config(args.overrides, state=args.state if asked or graph is None else graph.state)
-    if graph is not None and args.method != "random":
+    asked = args.state is not None or any(parse_override(o)[0] == "ncs.state" for o in sections["ncs"])
+    cfg = ncs_config(sections["ncs"], state=args.state if asked or graph is None else graph.state)
+    if graph is not None:
         try:
             graph.check_state(cfg.state)
         except ValueError as exc:
-            raise ValueError(f"--graph {args.graph}: {exc}") from None
+            raise ValueError(f"--graph {paths['graph']}: {exc}") from None
+    mpc = section_config(MPC_PRESETS[args.preset], "mpc", sections["mpc"]) if args.method == "mpc" else None
     if args.out:
         provenance(args.out, args.allow_dirty)
-    model = load_dslate(args.checkpoint) if args.checkpoint and args.method == "ncs" else None
+    model = load_dslate(paths["model"]) if "model" in needs else None
+    policy = load_trained_policy(paths["policy"], args.method) if "policy" in needs else None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
                     action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
-    rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed, ncs=cfg),
-                    tasks, args.method)
+    rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed, ncs=cfg,
+                                  policy=policy, mpc=mpc), tasks, args.method)
     if args.out:
         write_csv(rows, args.out)
     print(json.dumps(summarize(rows)[0]))
@@ -118,9 +132,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("evaluate", help="evaluate a method on a seeded task set")
     p.add_argument("--env", default="block-rearrange")
-    p.add_argument("--method", required=True, help="ncs | ncs-oracle | random")
-    p.add_argument("--checkpoint")
-    p.add_argument("--graph")
+    p.add_argument("--method", required=True,
+                   help="ncs | ncs-oracle | nf | nf-oracle | mpc | bc | iql | random")
+    p.add_argument("--checkpoint", help="dSLATE checkpoint (ncs, nf, mpc; default: the shipped one)")
+    p.add_argument("--graph", help="NCS graph (ncs, ncs-oracle; `graph`) or NF graph (nf, nf-oracle; "
+                                   "`graph-nf`); default: the shipped one for the method and state")
+    p.add_argument("--policy", help="trained BC or IQL checkpoint (`train-baseline`; default: the shipped one)")
+    p.add_argument("--preset", default="reduced", choices=["ci", "reduced", "paper"],
+                   help="mpc: CEM settings (reduced and paper: Appendix B's)")
     p.add_argument("--state", default=None,
                    help="mask | slot (= --set ncs.state); default: the state the graph was built on, "
                         "a different one is refused")

@@ -463,12 +463,31 @@ def apply_overrides(cfg, overrides) -> object:
     return cfg.validate()
 
 
-def ncs_config(overrides=(), **fields_) -> NCSConfig:
-    """An NCSConfig from keyword fields and `ncs.FIELD=VALUE` overrides (`graph`, `evaluate`)."""
+def section_config(cfg, section: str, overrides=()) -> object:
+    """`cfg` (a dataclass with `validate`) with the `SECTION.FIELD=VALUE` overrides applied;
+    an override of another section is refused, naming the fields this command takes."""
     for text in overrides or ():
         key, _ = parse_override(text)
-        if not key.startswith("ncs."):
-            allowed = ", ".join(f"ncs.{f.name}" for f in fields(NCSConfig))
-            raise ValueError(f"--set {key}: this command takes NCS fields only; allowed fields: {allowed}")
-    cfg = NCSConfig(**{k: v for k, v in fields_.items() if v is not None})
-    return apply_overrides(cfg, [str(o)[len("ncs."):] for o in overrides or ()])
+        if not key.startswith(f"{section}."):
+            allowed = ", ".join(f"{section}.{f.name}" for f in fields(cfg))
+            raise ValueError(f"--set {key}: this command takes {section.upper()} fields only; allowed fields: {allowed}")
+    return apply_overrides(cfg, [str(o)[len(section) + 1:] for o in overrides or ()])
+
+
+def split_overrides(overrides, sections) -> dict[str, list[str]]:
+    """Overrides grouped by their section (`ncs.clusters=16` -> "ncs"); a section outside
+    `sections` is refused, naming the ones this command takes."""
+    out = {name: [] for name in sections}
+    for text in overrides or ():
+        key, _ = parse_override(text)
+        section = key.split(".", 1)[0]
+        if section not in out or "." not in key:
+            raise ValueError(f"--set {key}: this command takes fields of {', '.join(s + '.' for s in sections)} "
+                             "only (e.g. ncs.clusters=16)")
+        out[section].append(text)
+    return out
+
+
+def ncs_config(overrides=(), **fields_) -> NCSConfig:
+    """An NCSConfig from keyword fields and `ncs.FIELD=VALUE` overrides (`graph`, `evaluate`)."""
+    return section_config(NCSConfig(**{k: v for k, v in fields_.items() if v is not None}), "ncs", overrides)

@@ -119,14 +119,21 @@ def write_csv(rows: list[dict], path: str | Path) -> Path:
     return Path(path)
 
 
-METHODS = ("ncs", "ncs-oracle", "random")
+METHODS = ("ncs", "ncs-oracle", "nf", "nf-oracle", "mpc", "bc", "iql", "random")
+# what each method needs besides the task: a transition graph (NCS's, or NF's scene graph),
+# a dSLATE model, a trained policy (BC, IQL)
+NEEDS = {"ncs": ("graph", "model"), "ncs-oracle": ("graph",), "nf": ("graph", "model"),
+         "nf-oracle": ("graph",), "mpc": ("model",), "bc": ("policy",), "iql": ("policy",),
+         "random": ()}
+NEED_NAMES = {"graph": "transition graph (--graph)", "model": "dSLATE checkpoint (--checkpoint)",
+              "policy": "trained policy (--policy)"}
 
 
 def learned_perception(model, num_objects: int, ncs=None):
-    """The perception the `ncs` agent reads a scene of `num_objects` objects with: one slot
-    per object plus `ncs.extra_slots` (the background's), at least the model's K, and the
-    restarts, iterations and kind of state of `ncs` (an `NCSConfig`, default the paper's
-    reading)."""
+    """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
+    objects with: one slot per object plus `ncs.extra_slots` (the background's), at least
+    the model's K, and the restarts, iterations and kind of state of `ncs` (an `NCSConfig`,
+    default the paper's reading)."""
     from .config import NCSConfig
     from .ncs.perception import DSlatePerception
 
@@ -136,35 +143,53 @@ def learned_perception(model, num_objects: int, ncs=None):
                             state=ncs.state)
 
 
-def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None):
-    """A function env -> agent for `method` (see METHODS); NCS methods need a graph, `ncs`
-    also a dSLATE model. `ncs` (an `NCSConfig`, default the paper's reading) sets how the
-    learned agent reads the model: restarts, iterations, and `extra_slots` slots beyond one
-    per object (the background's) when the scene holds more objects than the model's K
-    (`learned_perception`). `ncs.state` is the kind of state both NCS agents read (the
-    oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on."""
-    from .baselines import RandomAgent
+def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, policy=None, mpc=None):
+    """A function env -> agent for `method` (see METHODS and what each NEEDS).
+
+    graph: NCS's `TransitionGraph` (ncs, ncs-oracle) or NF's `SetGraph` (nf, nf-oracle);
+    model: a dSLATE (ncs, nf, mpc); policy: a trained BC or IQL model; mpc: an `MPCConfig`.
+    `ncs` (an `NCSConfig`, default the paper's reading) sets how the learned agents read the
+    model: restarts, iterations, and `extra_slots` slots beyond one per object (the
+    background's) when the scene holds more objects than the model's K
+    (`learned_perception`). `ncs.state` is the kind of state the graph agents read (the
+    oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on. MPC
+    always reads slot states (it rolls whole slots through the dynamics)."""
+    from dataclasses import replace
+
+    from .baselines import BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent, SetGraph
     from .config import NCSConfig
+    from .ncs.graph import TransitionGraph
     from .ncs.perception import ORACLE_STATES, OraclePerception
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    given = {"graph": graph, "model": model, "policy": policy}
+    for need in NEEDS[method]:
+        if given[need] is None:
+            raise ValueError(f"method {method!r} needs a {NEED_NAMES[need]}")
+    ncs = ncs or NCSConfig()
     if method == "random":
         return lambda env: RandomAgent(env.action_space, seed)
-    if graph is None:
-        raise ValueError(f"method {method!r} needs a transition graph (--graph)")
-    ncs = ncs or NCSConfig()
+    if method in ("bc", "iql"):
+        agent, kind = (BCAgent, BCPolicy) if method == "bc" else (IQLAgent, IQLNetworks)
+        if not isinstance(policy, kind):
+            raise ValueError(f"method {method!r} needs a {method.upper()} policy ({kind.__name__}), "
+                             f"got a {type(policy).__name__}")
+        return lambda env: agent(policy)
+    if method == "mpc":
+        return lambda env: MPCAgent(model, learned_perception(model, env.config.num_objects,
+                                                              replace(ncs, state="slot")),
+                                    env.action_space, mpc, seed)
+    agent, kind, command = ((NCSAgent, TransitionGraph, "graph") if method.startswith("ncs") else
+                            (NFAgent, SetGraph, "graph-nf"))
+    if not isinstance(graph, kind):
+        raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
+                         f"got a {type(graph).__name__}")
     graph.check_state(ncs.state)
-    if method == "ncs-oracle":
-        return lambda env: NCSAgent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed)
-    if model is None:
-        raise ValueError("method 'ncs' needs a dSLATE checkpoint (--checkpoint)")
-
-    def make_ncs(env):
-        return NCSAgent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed)
-
-    return make_ncs
+    if method.endswith("oracle"):
+        return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed)
+    return lambda env: agent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed)
 
 
 # The code an evaluation's rows depend on (a cache key): the envs, the model, the agents and
@@ -173,27 +198,31 @@ EVALUATION_CODE = ("envs", "models", "ncs", "baselines", "evaluation.py", "confi
 
 
 def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed: int = 0, ncs=None,
-                    label: str | None = None, cache: bool = True) -> list[dict]:
-    """`evaluate(agent_factory(method, graph, model, seed, ncs), tasks, label or method)`.
+                    policy=None, mpc=None, label: str | None = None, cache: bool = True) -> list[dict]:
+    """`evaluate(agent_factory(method, graph, model, seed, ncs, policy, mpc), tasks, label or method)`.
 
     With `cache` the rows are loaded from the kit's cache (`ncs_lite.cache`) when an earlier
-    run stored them under the same method, task set, seed, NCS settings, graph and model
+    run stored them under the same method, task set, seed, settings, graph, model and policy
     (their digests) and code (EVALUATION_CODE); otherwise they are computed and stored.
     """
+    from .baselines import MPCConfig
     from .config import NCSConfig
 
-    make = agent_factory(method, graph=graph, model=model, seed=seed, ncs=ncs)
+    make = agent_factory(method, graph=graph, model=model, seed=seed, ncs=ncs, policy=policy, mpc=mpc)
     name = label or method
     if not cache:
         return evaluate(make, tasks, name)
     from .cache import cached, code_digest, digest
 
     ncs = ncs or NCSConfig()
+    needs = NEEDS[method]
     key = {"method": method, "label": name, "tasks": asdict(tasks), "seed": seed,
-           "ncs": asdict(ncs) if method == "ncs" else None,          # holds ncs.state
-           "state": ncs.state if method != "random" else None,
-           "graph": digest(graph) if method != "random" else None,
-           "model": digest(model) if method == "ncs" else None,
+           "ncs": asdict(ncs) if "model" in needs else None,           # holds ncs.state
+           "state": ncs.state if "graph" in needs else None,
+           "mpc": asdict(mpc or MPCConfig()) if method == "mpc" else None,
+           "graph": digest(graph) if "graph" in needs else None,
+           "model": digest(model) if "model" in needs else None,
+           "policy": digest(policy) if "policy" in needs else None,
            "code": code_digest(*EVALUATION_CODE)}
     return cached("evaluation", lambda: evaluate(make, tasks, name), **key)
 

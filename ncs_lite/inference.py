@@ -18,7 +18,8 @@ from .models.dslate import DSlate
 from .training import read_checkpoint, resolve_device
 from .utils import PACKAGE_DIR, cache_dir
 
-__all__ = ["load_dslate", "obtain_dslate", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH", "SHIPPED_SLOT_GRAPH"]
+__all__ = ["load_dslate", "obtain_dslate", "shipped_asset", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH",
+           "SHIPPED_SLOT_GRAPH"]
 
 # The `reduced` block-rearrange checkpoint shipped with the kit (see README for the command).
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
@@ -26,6 +27,17 @@ SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt
 SHIPPED_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced.pt"
 # its graph on slot states (`graph ... --state slot`: Table 3's second column)
 SHIPPED_SLOT_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced_slot.pt"
+# the baselines' and the oracles' assets (`make baseline-assets`: the commands, listed in the README)
+ASSETS = PACKAGE_DIR / "assets"
+SHIPPED_ORACLE_GRAPH = ASSETS / "graph_block_rearrange_oracle.pt"              # ncs-oracle, masks
+SHIPPED_POSITION_GRAPH = ASSETS / "graph_block_rearrange_oracle_position.pt"   # ncs-oracle, positions
+SHIPPED_NF_GRAPH = ASSETS / "nf_graph_block_rearrange_reduced.pt"             # nf, bound by SHIPPED_GRAPH
+SHIPPED_NF_ORACLE_GRAPH = ASSETS / "nf_graph_block_rearrange_oracle.pt"       # nf-oracle
+SHIPPED_POLICIES = {"bc": ASSETS / "bc_block_rearrange_reduced.pt", "iql": ASSETS / "iql_block_rearrange_reduced.pt"}
+_SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT_GRAPH,
+                   ("ncs-oracle", "mask"): SHIPPED_ORACLE_GRAPH, ("ncs-oracle", "slot"): SHIPPED_POSITION_GRAPH,
+                   ("nf", "mask"): SHIPPED_NF_GRAPH, ("nf-oracle", "mask"): SHIPPED_NF_ORACLE_GRAPH}
+SHIPPED_ENVS = ("block-rearrange",)
 # 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
 
@@ -112,3 +124,22 @@ def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
     if (ckpt.get("code_version") or {}).get("training_code") != training_code_version():
         return "the training code changed since it was trained"
     return None
+
+
+def shipped_asset(env: str, method: str, need: str, state: str = "mask") -> Path:
+    """The shipped `reduced` file a method runs from when no path is given: `need` is
+    "model" (the dSLATE checkpoint), "graph" or "policy" (see `evaluation.NEEDS`).
+    ValueError when the kit ships none for that env, method and state."""
+    flag = {"model": "--checkpoint", "graph": "--graph", "policy": "--policy"}.get(need)
+    if flag is None:
+        raise ValueError(f"need must be 'model', 'graph' or 'policy', got {need!r}")
+    path = None
+    if env in SHIPPED_ENVS:
+        path = {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES.get(method),
+                "graph": _SHIPPED_GRAPHS.get((method, state))}[need]
+    if path is None:
+        raise ValueError(f"the kit ships no {need} for {method!r} on {env!r} with {state!r} states; pass {flag}")
+    if not path.exists():
+        raise FileNotFoundError(f"the shipped {need} {path} is missing; `make baseline-assets` rebuilds it, "
+                                f"or pass {flag}")
+    return path

@@ -180,8 +180,12 @@ def test_cli_graph_and_evaluate(tmp_path, capsys):
     # errors are reported, not raised
     assert main(["graph", "--data", str(tmp_path / "buf"), "--out", str(tmp_path / "x.pt")]) == 2
     assert "exactly one of --checkpoint" in capsys.readouterr().err
-    assert main(["evaluate", "--method", "ncs-oracle", "--episodes", "2"]) == 2
-    assert "needs a transition graph" in capsys.readouterr().err
+    assert main(["evaluate", "--method", "ncs-oracle", "--graph", str(tmp_path / "g.pt"), "--state", "slot",
+                 "--episodes", "2"]) == 2
+    assert "built on 'mask' states" in capsys.readouterr().err
+    # without --graph: the shipped oracle graph
+    assert main(["evaluate", "--method", "ncs-oracle", "--episodes", "2", "--num-objects", "3"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["success"] == 1.0
 
 
 def test_agent_records_a_fallback_and_the_oracle_masks(oracle_graph):

@@ -84,11 +84,13 @@ class BCPolicy(nn.Module):
 
 
 def train_bc(buffer, action_space, cfg: BCConfig | None = None, *, out=None,
-             checkpoint_every: int | None = None, resume: bool = False) -> tuple[BCPolicy, list[dict]]:
+             checkpoint_every: int | None = None, resume: bool = False,
+             info: dict | None = None) -> tuple[BCPolicy, list[dict]]:
     """Train BC on a buffer (dict of `load_buffer`, or its directory).
 
     Returns (model in eval mode, log: one {"step", "loss"} per step; loss = batch MSE in box
-    units). `out`, `checkpoint_every`, `resume`: see `goal_conditioned.run_training`."""
+    units). `out`, `checkpoint_every`, `resume`: see `goal_conditioned.run_training`; `info` is
+    stored in the checkpoint."""
     cfg = (cfg or BCConfig()).validate()
     model, box, goals = training_setup(buffer, action_space, cfg, BCPolicy)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -102,7 +104,7 @@ def train_bc(buffer, action_space, cfg: BCConfig | None = None, *, out=None,
         return {"loss": loss.item()}
 
     log = run_training(KIND, model, optimizer, step_fn, cfg, out=out, checkpoint_every=checkpoint_every,
-                       resume=resume, info={"episodes": goals.episodes})
+                       resume=resume, info={"episodes": goals.episodes, **(info or {})})
     return model, log
 
 

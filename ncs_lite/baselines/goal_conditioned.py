@@ -206,18 +206,19 @@ def save_checkpoint(path, kind: str, model: nn.Module, cfg, *, step: int, log: l
     return Path(path)
 
 
-def read_checkpoint(path, kind: str) -> dict:
-    """Load a checkpoint written by `save_checkpoint`; ValueError unless it is a `kind` one."""
+def read_checkpoint(path, kind: str | None) -> dict:
+    """Load a checkpoint written by `save_checkpoint`; ValueError unless it is a `kind` one
+    (any kind when None)."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"no {kind} checkpoint at {path}")
+        raise FileNotFoundError(f"no {kind or 'baseline'} checkpoint at {path}")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - unpickling errors come in many types
         raise ValueError(f"{path} is not a loadable checkpoint: {e}") from e
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT or "kind" not in ckpt:
         raise ValueError(f"{path} is not an ncs-lite baseline checkpoint (format {CHECKPOINT_FORMAT} with a kind tag)")
-    if ckpt["kind"] != kind:
+    if kind is not None and ckpt["kind"] != kind:
         raise ValueError(f"{path} is a {ckpt['kind']!r} checkpoint, expected {kind!r}")
     return ckpt
 
@@ -230,7 +231,8 @@ def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=No
     With `out`, an atomic checkpoint every `checkpoint_every` steps and at the end. With
     `resume`, continue from `out` (same config required): model, optimizer, step and log
     come back and the batches are those of the uninterrupted run (`HindsightGoals`), so the
-    result is the same. Returns the log, one dict per step."""
+    result is the same. Each checkpoint writes the log so far beside it as a CSV
+    (`out` with suffix .csv). Returns the log, one dict per step."""
     from ..utils import progress
 
     log, start = [], 0
@@ -253,11 +255,26 @@ def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=No
         if not all(np.isfinite(v) for v in row.values()):
             raise FloatingPointError(f"{kind} training diverged at step {step + 1}: {row}")
         if out is not None and checkpoint_every and (step + 1) % checkpoint_every == 0:
-            save_checkpoint(out, kind, model, cfg, step=step + 1, log=log, optimizer=optimizer, info=info)
+            _save_run(out, kind, model, cfg, step + 1, log, optimizer, info)
     if out is not None:
-        save_checkpoint(out, kind, model, cfg, step=cfg.steps, log=log, optimizer=optimizer, info=info)
+        _save_run(out, kind, model, cfg, cfg.steps, log, optimizer, info)
     model.eval()
     return log
+
+
+def _save_run(out, kind, model, cfg, step, log, optimizer, info) -> None:
+    """A checkpoint and, beside it, its loss log as a CSV (both atomic)."""
+    import csv
+    import io
+
+    from ..utils import atomic_write_text
+
+    save_checkpoint(out, kind, model, cfg, step=step, log=log, optimizer=optimizer, info=info)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(log[0]) if log else ["step"])
+    writer.writeheader()
+    writer.writerows(log)
+    atomic_write_text(Path(out).with_suffix(".csv"), text.getvalue())
 
 
 __all__ = ["ActionBox", "HindsightGoals", "PixelEncoder", "as_buffer", "check_buffer", "mlp",
@@ -276,7 +293,7 @@ def load_policy(path, kind: str, config_cls, model_cls) -> nn.Module:
     sd = ckpt["model"]
     model = model_cls(cfg, ActionBox(sd["box.low"], sd["box.high"]))
     model.load_state_dict(sd)
-    model.log = ckpt["log"]
+    model.log, model.info, model.step = ckpt["log"], ckpt["info"], ckpt["step"]
     return model.eval()
 
 

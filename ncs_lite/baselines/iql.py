@@ -193,12 +193,14 @@ def iql_losses(model: IQLNetworks, batch: dict, cfg: IQLConfig) -> dict[str, tor
 
 
 def train_iql(buffer, action_space, cfg: IQLConfig | None = None, *, out=None,
-              checkpoint_every: int | None = None, resume: bool = False) -> tuple[IQLNetworks, list[dict]]:
+              checkpoint_every: int | None = None, resume: bool = False,
+              info: dict | None = None) -> tuple[IQLNetworks, list[dict]]:
     """Train IQL on a buffer (dict of `load_buffer`, or its directory).
 
     Returns (model in eval mode, log: one dict per step with the three losses, the mean
     advantage weight, mean Q and V, and the batch's reward rate). `out`,
-    `checkpoint_every`, `resume`: see `goal_conditioned.run_training`."""
+    `checkpoint_every`, `resume`: see `goal_conditioned.run_training`; `info` is
+    stored in the checkpoint."""
     cfg = (cfg or IQLConfig()).validate()
     model, box, goals = training_setup(buffer, action_space, cfg, IQLNetworks)
     optimizer = torch.optim.Adam(model.online_parameters(), lr=cfg.lr)
@@ -213,7 +215,7 @@ def train_iql(buffer, action_space, cfg: IQLConfig | None = None, *, out=None,
         return {k: v.item() for k, v in losses.items()}
 
     log = run_training(KIND, model, optimizer, step_fn, cfg, out=out, checkpoint_every=checkpoint_every,
-                       resume=resume, info={"episodes": goals.episodes})
+                       resume=resume, info={"episodes": goals.episodes, **(info or {})})
     return model, log
 
 

@@ -69,6 +69,18 @@ class SetGraph:
         return len(self.sets)
 
     @property
+    def state(self) -> str:
+        """The kind of entity state its scenes are sets of (Table 3: "mask" or "slot")."""
+        return self.info.get("state", "mask")
+
+    def check_state(self, state: str) -> None:
+        """ValueError unless an agent reading `state` states can bind to this graph."""
+        if state != self.state:
+            raise ValueError(f"the NF graph was built on {self.state!r} states but the agent would read "
+                             f"{state!r} states: evaluate with --state {self.state} (ncs.state), or build "
+                             f"it with `python -m ncs_lite graph-nf --state {state}`")
+
+    @property
     def num_edges(self) -> int:
         return len(self.edges)
 

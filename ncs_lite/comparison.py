@@ -1,0 +1,96 @@
+"""The main comparison (Appendix B): every method on the same seeded tasks.
+
+    assets = comparison_assets("reduced")          # the shipped files (others: built, cached)
+    rows = run_comparison(assets, counts=(4, 5, 6, 7), goals=("complete", "partial"),
+                          episodes=100, mpc_episodes=20)
+    summarize(rows)                                 # success, 95% Wilson interval, random share
+
+`python -m ncs_lite reproduce baselines` writes its summary to figures/tables/; notebook 07
+draws it. Every method reads the same dSLATE checkpoint where it reads one (NCS, NF, MPC),
+and the graph methods bind with the same entity nodes: NF's scenes are sets of nodes of
+NCS's graph, so NF and NCS differ in the factorization only.
+"""
+from __future__ import annotations
+
+from .evaluation import TaskSet, evaluate_method
+
+__all__ = ["COMPARED", "comparison_assets", "run_comparison"]
+
+# label: (method, the assets it reads); the order of the figure's legend
+COMPARED = {
+    "ncs": ("ncs", ("graph", "model")),
+    "ncs-oracle": ("ncs-oracle", ("oracle_graph",)),
+    "nf": ("nf", ("nf_graph", "model")),
+    "nf-oracle": ("nf-oracle", ("nf_oracle_graph",)),
+    "mpc": ("mpc", ("model",)),
+    "bc": ("bc", ("bc",)),
+    "iql": ("iql", ("iql",)),
+    "random": ("random", ()),
+}
+GRAPH_EPISODES = {"ci": 60, "reduced": 1000, "paper": 5000}   # buffer the graphs are built on (= notebooks 05-06)
+CLUSTERS = {"ci": 8, "reduced": 30, "paper": 30}                # Table 4 (ci: a tiny buffer)
+
+
+def comparison_assets(preset: str = "reduced", seed: int = 0) -> dict:
+    """What every method runs from, and where each came from (`paths`).
+
+    `reduced`: the shipped assets (`inference.shipped_asset`, built by `make baseline-assets`).
+    Other presets: the dSLATE of `obtain_dslate`, the policies of `obtain_policy`, and the
+    graphs built here from the cached graph buffer (cached transitions, seconds)."""
+    from .baselines import SetGraph, set_graph_from_transitions
+    from .baselines.runs import load_trained_policy, obtain_policy
+    from .data import cached_buffer
+    from .inference import load_dslate, obtain_dslate, shipped_asset
+    from .ncs.graph import TransitionGraph, build_graph
+    from .ncs.perception import DSlatePerception, OraclePerception, buffer_transitions
+
+    if preset == "reduced":
+        env = "block-rearrange"
+        paths = {"model": shipped_asset(env, "ncs", "model"), "graph": shipped_asset(env, "ncs", "graph"),
+                 "oracle_graph": shipped_asset(env, "ncs-oracle", "graph"),
+                 "nf_graph": shipped_asset(env, "nf", "graph"),
+                 "nf_oracle_graph": shipped_asset(env, "nf-oracle", "graph"),
+                 "bc": shipped_asset(env, "bc", "policy"), "iql": shipped_asset(env, "iql", "policy")}
+        return {"model": load_dslate(paths["model"]), "graph": TransitionGraph.load(paths["graph"]),
+                "oracle_graph": TransitionGraph.load(paths["oracle_graph"]),
+                "nf_graph": SetGraph.load(paths["nf_graph"]), "nf_oracle_graph": SetGraph.load(paths["nf_oracle_graph"]),
+                "bc": load_trained_policy(paths["bc"], "bc"), "iql": load_trained_policy(paths["iql"], "iql"),
+                "paths": {k: str(v) for k, v in paths.items()}, "preset": preset}
+    model, model_path = obtain_dslate(preset, seed=seed)
+    data = cached_buffer(GRAPH_EPISODES[preset], seed=seed)
+    clusters = CLUSTERS[preset]
+    out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset}
+    for name, perception in (("", DSlatePerception(model)), ("oracle_", OraclePerception())):
+        st, st1, acts, true = buffer_transitions(perception, data)
+        graph = build_graph(st, st1, acts, clusters=clusters, seed=seed, true_entity=true)
+        out[f"{name}graph"] = graph
+        out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph)
+    for method in ("bc", "iql"):
+        out[method], path = obtain_policy(method, preset, seed)
+        out["paths"][method] = str(path)
+    return out
+
+
+def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partial"), episodes: int = 100,
+                   mpc_episodes: int | None = None, horizon_multiplier: float = 4.0, seed: int = 0,
+                   methods=tuple(COMPARED), cache: bool = True) -> list[dict]:
+    """Per-episode rows (`evaluation.COLUMNS`) of every method in `methods` on the same task
+    sets: for each goal kind and object count, `episodes` seeded tasks (MPC: the first
+    `mpc_episodes` of them, default all; its planning costs the most). Cached per method and
+    task set (`evaluate_method`)."""
+    unknown = sorted(set(methods) - set(COMPARED))
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}; expected some of {', '.join(COMPARED)}")
+    from .utils import progress
+
+    rows = []
+    cells = [(g, k, m) for g in goals for k in counts for m in methods]
+    for goal, k, label in progress(cells, desc="comparison"):
+        method, needs = COMPARED[label]
+        n = (mpc_episodes or episodes) if method == "mpc" else episodes
+        tasks = TaskSet(num_objects=k, goal=goal, horizon_multiplier=horizon_multiplier, episodes=n, seed=seed)
+        kw = {"graph": next((assets[a] for a in needs if a.endswith("graph")), None),
+              "model": assets["model"] if "model" in needs else None,
+              "policy": assets[method] if method in ("bc", "iql") else None}
+        rows += evaluate_method(method, tasks, seed=seed, label=label, cache=cache, **kw)
+    return rows
