@@ -3,6 +3,8 @@
     seeds     train the recipe once per `--seeds`, then per seed: its graph, held-out fg-ARI
               and NCS success; mean ± sd over seeds beside each seed's Wilson interval
     clusters  NCS success against the number of graph nodes on the shipped checkpoint
+    baselines every method (NCS, its oracle, NF, MPC, BC, IQL, Random) at 4..7 objects,
+              complete and partial goals, on the same tasks (`ncs_lite.comparison`)
 
 Each writes `figures/tables/<table>.csv` (one row per seed or point) and `<table>.json` (the
 rows, the summary and the provenance: commit, inputs with their hashes, parameters). Every
@@ -22,7 +24,7 @@ import numpy as np
 from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
                     relative_to_repo, sha256_file)
 
-__all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table",
+__all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
            "mean_sd", "add_subcommand"]
 
 HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
@@ -251,31 +253,67 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
     atomic_write_json(path, times)
 
 
-TABLES = {"seeds": seeds_table, "clusters": clusters_table}
+def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
+                    out_dir=None, allow_dirty: bool = False) -> dict:
+    """figures/tables/baselines_<preset>.csv: one row per method, goal kind and object count
+    (success, 95% Wilson interval, random-action share, mean steps), from the assets of
+    `comparison_assets(preset)`; the per-episode rows go beside it (`_episodes.csv`)."""
+    import time
+
+    from .comparison import EPISODES, MPC_EPISODES, comparison_assets, run_comparison
+    from .evaluation import summarize, write_csv
+
+    episodes = episodes or EPISODES[preset]
+    mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
+    name = f"baselines_{preset}"
+    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
+    start = time.perf_counter()
+    assets = comparison_assets(preset)
+    rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
+    keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "random_fraction",
+            "mean_steps")
+    table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
+             for r in summarize(rows)]
+    write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
+    meta = {"preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
+            "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
+                       if Path(v).is_file()},
+            "minutes": round((time.perf_counter() - start) / 60, 1)}
+    write_table(name, table, meta, out_dir, allow_dirty)
+    return {"rows": table, "minutes": meta["minutes"]}
+
+
+TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table}
 
 
 def run_table(name: str, args) -> dict:
     if name == "seeds":
-        return seeds_table(args.preset, args.seeds, args.runs, args.overrides, args.episodes,
+        return seeds_table(args.preset, args.seeds, args.runs, args.overrides, args.episodes or 100,
                            out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "clusters":
-        return clusters_table(args.checkpoint, episodes=args.episodes, out_dir=args.out_dir,
+        return clusters_table(args.checkpoint, episodes=args.episodes or 100, out_dir=args.out_dir,
                               allow_dirty=args.allow_dirty)
+    if name == "baselines":
+        return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
+                               allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
 
 
 def add_subcommand(subparsers) -> None:
     from .training import add_run_arguments
 
-    p = subparsers.add_parser("reproduce", help="regenerate a README table (seeds, clusters)",
+    p = subparsers.add_parser("reproduce", help="regenerate a README table (seeds, clusters, baselines)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("table", choices=sorted(TABLES))
-    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train")
+    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines: the assets")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
     p.add_argument("--checkpoint", help="clusters: checkpoint (default: the shipped one)")
-    p.add_argument("--episodes", type=int, default=100, help="tasks per object count")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
+    p.add_argument("--mpc-episodes", type=int, default=None,
+                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 10)")
     p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
     add_run_arguments(p)
     p.set_defaults(func=lambda args: print(json.dumps(run_table(args.table, args), indent=2,
