@@ -7,12 +7,14 @@ through `progress` so CI can silence all bars with one setting (NCS_LITE_PROGRES
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import random
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -72,18 +74,37 @@ def progress(iterable=None, **kwargs):
     return tqdm(iterable, **kwargs)
 
 
+STALE_TMP_SECONDS = 3600     # a temporary file this old was left by a killed write
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path in the target's folder; rename it over `path` on success.
 
-    os.replace is atomic on POSIX, so readers see either the old file or the new one.
+    os.replace is atomic on POSIX, so readers see either the old file or the new one. The
+    file gets the mode a plain `open` would give (0666 less the umask; mkstemp's is 0600,
+    which a shared class folder could not read). Temporary files of `path` that a killed
+    write left behind (older than STALE_TMP_SECONDS) are removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        try:
+            if time.time() - old.stat().st_mtime > STALE_TMP_SECONDS:
+                old.unlink()
+        except OSError:
+            pass                       # another process removed or renamed it
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -143,3 +143,22 @@ def test_cli_chain(tmp_path, monkeypatch, capsys):
     assert summary["episodes"] == 2 and 0 <= summary["success"] <= 1
     with open("r.csv") as f:
         assert len(list(csv.DictReader(f))) == 2
+
+
+def test_atomic_writes_get_the_umask_mode_and_clear_stale_temporaries(tmp_path):
+    import os
+    import time
+
+    from ncs_lite.utils import STALE_TMP_SECONDS, atomic_write_text
+
+    stale, fresh = tmp_path / ".x.txt.abc.tmp", tmp_path / ".x.txt.def.tmp"
+    for f in (stale, fresh):
+        f.write_text("left by a killed write")
+    os.utime(stale, (time.time() - 2 * STALE_TMP_SECONDS,) * 2)
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "x.txt", "hi")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "x.txt").stat().st_mode & 0o777 == 0o644      # not mkstemp's 0600
+    assert not stale.exists() and fresh.exists()                     # a recent one may be a live write
