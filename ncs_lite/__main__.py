@@ -163,7 +163,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, OSError) as exc:      # bad input or file: one line, no traceback
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -63,7 +63,15 @@ def resolve_device(device=None) -> torch.device:
     """The given device, else CUDA when available, else CPU."""
     if device is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
+    try:
+        device = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"unknown device {device!r}; expected 'cpu' or 'cuda' (or 'cuda:N')") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {str(device)!r} asked for, but this torch build sees no CUDA GPU; use 'cpu'")
+    if device.type not in ("cpu", "cuda"):
+        raise ValueError(f"device {str(device)!r} is not supported; expected 'cpu' or 'cuda'")
+    return device
 
 
 def cpu_has_fast_bf16() -> bool:
@@ -269,7 +277,14 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     if stop < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
 
+    from .envs import ENVIRONMENTS
+
+    if env not in ENVIRONMENTS:
+        raise ValueError(f"unknown environment {env!r}; expected one of {', '.join(ENVIRONMENTS)}")
     manifest = load_manifest(data_dir)
+    collected_on = (manifest.get("env") or {}).get("env", env)
+    if collected_on != env:
+        raise ValueError(f"the buffer {data_dir} was collected on {collected_on!r}, not --env {env!r}")
     data_meta = {"dir": relative_to_repo(data_dir), "episodes": int(manifest["episodes"]),
                  "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
     csv_path = out_path.with_suffix(".csv")

@@ -111,6 +111,26 @@ def atomic_path(path: str | os.PathLike):
             os.unlink(tmp)
 
 
+def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "") -> dict:
+    """`torch.load(path, weights_only=True)` of a file that must hold a dict; FileNotFoundError
+    or ValueError naming the file and `what` it should be (truncated, not a torch file, a
+    pickle that is not plain tensors, a directory) instead of the unpickler's own error."""
+    import torch
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no {what} at {path}{'; ' + hint if hint else ''}")
+    if not path.is_file():
+        raise ValueError(f"{path} is a directory, expected a {what} file")
+    try:
+        obj = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception as e:  # noqa: BLE001 - truncated zips, foreign pickles, ... come in many types
+        raise ValueError(f"{path} is not a readable {what} ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
+    if not isinstance(obj, dict):
+        raise ValueError(f"{path} is not a {what} (it holds a {type(obj).__name__}, expected a dict)")
+    return obj
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)

@@ -3,6 +3,7 @@ import csv
 import json
 
 import pytest
+import torch
 
 from ncs_lite import utils
 from ncs_lite.__main__ import main
@@ -57,7 +58,7 @@ def test_overrides_recorded_and_resume_refuses_differences(buffer, tmp_path):
     assert ckpt["code_version"]["training_code"]
     with pytest.raises(ValueError, match=r"precision: 'fp32' != 'bf16'"):
         train(cfg, buffer, out, resume=True, precision="bf16")
-    with pytest.raises(ValueError, match=r"env: 'block-rearrange' != 'other'"):
+    with pytest.raises(ValueError, match=r"unknown environment 'other'"):     # refused before resuming
         train(cfg, buffer, out, resume=True, env="other")
     other = collect(tmp_path / "other", episodes=8, seed=1, shard_size=4)
     with pytest.raises(ValueError, match=r"buffer manifest"):
@@ -162,3 +163,31 @@ def test_atomic_writes_get_the_umask_mode_and_clear_stale_temporaries(tmp_path):
         os.umask(old)
     assert (tmp_path / "x.txt").stat().st_mode & 0o777 == 0o644      # not mkstemp's 0600
     assert not stale.exists() and fresh.exists()                     # a recent one may be a live write
+
+
+def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
+    """A checkpoint passed as a graph, a truncated or corrupted graph, a directory, an
+    unknown env or device: exit 2 with a message naming the file or value."""
+    from ncs_lite.__main__ import main
+    from ncs_lite.data import cached_buffer
+    from ncs_lite.inference import SHIPPED_CHECKPOINT, SHIPPED_GRAPH
+    from ncs_lite.ncs.graph import TransitionGraph
+
+    graph = TransitionGraph.load(SHIPPED_GRAPH)
+    graph.save(tmp_path / "g.pt")
+    data = (tmp_path / "g.pt").read_bytes()
+    (tmp_path / "half.pt").write_bytes(data[: len(data) // 2])
+    sd = torch.load(tmp_path / "g.pt", weights_only=True)
+    sd["edge_action"][0, 0] += 1.0
+    torch.save(sd, tmp_path / "flipped.pt")
+    cases = {str(SHIPPED_CHECKPOINT): "holds a dSLATE checkpoint", str(tmp_path / "half.pt"): "is not a readable",
+             str(tmp_path / "flipped.pt"): "is corrupted", str(tmp_path): "is a directory"}
+    for path, message in cases.items():
+        assert main(["evaluate", "--method", "ncs-oracle", "--graph", path, "--episodes", "1"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and path in err and err.count("\n") == 1
+    buf = str(cached_buffer(16))
+    assert main(["train", "--preset", "ci", "--env", "bogus", "--data", buf, "--out", str(tmp_path / "m.pt")]) == 2
+    assert "unknown environment 'bogus'" in capsys.readouterr().err
+    assert main(["train", "--preset", "ci", "--device", "bogus", "--data", buf, "--out", str(tmp_path / "m.pt")]) == 2
+    assert "unknown device 'bogus'" in capsys.readouterr().err

@@ -35,9 +35,9 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE, edge_tensors
+from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE, check_graph_file, content_digest, edge_tensors
 from ..ncs.kmeans import assign, kmeans
-from ..utils import atomic_torch_save
+from ..utils import atomic_torch_save, load_tensor_file
 
 GRAPH_KIND = "nf-graph"
 GRAPH_FORMAT = 1
@@ -165,9 +165,9 @@ class SetGraph:
         sets = torch.full((self.num_nodes, width), -1, dtype=torch.int64)
         for i, s in enumerate(self.sets):
             sets[i, :len(s)] = torch.tensor(s, dtype=torch.int64)
-        return {"kind": GRAPH_KIND, "format": GRAPH_FORMAT, "centroids": self.centroids.float(),
-                "bind_metric": self.bind_metric, "sets": sets, **edge_tensors(self.edges),
-                "info": dict(self.info)}
+        sd = {"kind": GRAPH_KIND, "format": GRAPH_FORMAT, "centroids": self.centroids.float(),
+              "bind_metric": self.bind_metric, "sets": sets, **edge_tensors(self.edges), "info": dict(self.info)}
+        return {**sd, "content_digest": content_digest(sd)}
 
     def save(self, path: str | Path) -> Path:
         atomic_torch_save(self.state_dict(), path)
@@ -175,12 +175,11 @@ class SetGraph:
 
     @classmethod
     def load(cls, path: str | Path) -> "SetGraph":
-        path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(f"no NF graph at {path}")
-        sd = torch.load(path, weights_only=True, map_location="cpu")
-        if not isinstance(sd, dict) or sd.get("kind") != GRAPH_KIND or sd.get("format") != GRAPH_FORMAT:
-            raise ValueError(f"{path} is not an ncs-lite NF graph (kind {GRAPH_KIND!r}, format {GRAPH_FORMAT})")
+        sd = load_tensor_file(path, "NF graph", "build one with `python -m ncs_lite graph-nf`")
+        if sd.get("kind") != GRAPH_KIND or "sets" not in sd:
+            raise ValueError(f"{path} is not an ncs-lite NF graph (kind {GRAPH_KIND!r}); it holds "
+                             f"{sd.get('kind') or 'an untagged file'}")
+        check_graph_file(sd, path, GRAPH_KIND, "NF graph")
         sets = [tuple(v for v in row if v >= 0) for row in sd["sets"].tolist()]
         graph = cls(sd["centroids"], sd["bind_metric"], sets, {}, sd["info"])
         for (s, d), a, n in zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(), sd["edge_count"].tolist()):

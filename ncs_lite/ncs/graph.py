@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..utils import atomic_torch_save
+from ..utils import atomic_torch_save, load_tensor_file
 from .kmeans import assign, kmeans
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
@@ -30,6 +30,7 @@ METRICS_BY_STATE = {
     "mask": {"isolate": "cosine", "cluster": "iou", "bind": "cosine"},
     "slot": {"isolate": "cosine", "cluster": "sqeuclidean", "bind": "sqeuclidean"},
 }
+BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 
@@ -50,6 +51,39 @@ def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
         raise ValueError("states_t and states_t1 must both have shape (M, K, D), got "
                          f"{tuple(states_t.shape)} and {tuple(states_t1.shape)}")
     return isolate_distance(states_t, states_t1).argmax(dim=1)
+
+
+GRAPH_KIND = "ncs-graph"
+GRAPH_KEYS = ("centroids", "bind_metric", "edge_index", "edge_action", "edge_count", "info")
+
+
+def content_digest(sd: dict) -> str:
+    """Digest of a graph file's tensors and metric (checked on load: a flipped byte shows)."""
+    from ..cache import digest
+
+    return digest([sd[k] for k in GRAPH_KEYS[:-1]] + [sd.get("sets")])
+
+
+def check_graph_file(sd: dict, path, kind: str, what: str) -> dict:
+    """ValueError naming `path` unless `sd` is a sound graph file of `kind`: the keys, the
+    kind tag (files from before the tag have none), the content digest when stored, finite
+    centroids, a known bind metric, edges between existing nodes."""
+    if sd.get("kind", kind) != kind or sd.get("format") != 1 or any(k not in sd for k in GRAPH_KEYS):
+        found = sd.get("kind") or ("a dSLATE checkpoint" if "model" in sd else f"keys {sorted(sd)[:6]}")
+        raise ValueError(f"{path} is not an ncs-lite {what} (kind {kind!r}, format 1); it holds {found}")
+    if "content_digest" in sd and content_digest(sd) != sd["content_digest"]:
+        raise ValueError(f"{path} is corrupted: its content does not match the digest stored when it was saved")
+    c, index = sd["centroids"], sd["edge_index"]
+    if not (isinstance(c, torch.Tensor) and c.ndim == 2 and c.shape[0] > 0 and bool(torch.isfinite(c).all())):
+        raise ValueError(f"{path}: centroids must be a finite (N, D) tensor with N >= 1")
+    if sd["bind_metric"] not in BIND_METRICS:
+        raise ValueError(f"{path}: unknown bind metric {sd['bind_metric']!r}; expected one of {sorted(BIND_METRICS)}")
+    nodes = len(sd["sets"]) if "sets" in sd else c.shape[0]
+    if index.ndim != 2 or index.shape[1] != 2 or (index.numel() and (index.min() < 0 or index.max() >= nodes)):
+        raise ValueError(f"{path}: edges must join nodes 0..{nodes - 1}")
+    if not (sd["edge_action"].shape == (index.shape[0], 6) and sd["edge_count"].shape == (index.shape[0],)):
+        raise ValueError(f"{path}: every edge needs one action (6,) and one count")
+    return sd
 
 
 def edge_tensors(edges: dict) -> dict:
@@ -116,8 +150,9 @@ class TransitionGraph:
     # -------------------------------------------------------------- save/load
     def state_dict(self) -> dict:
         """Only tensors, strings and numbers: loads with torch.load(weights_only=True)."""
-        return {"format": 1, "centroids": self.centroids.float(), "bind_metric": self.bind_metric,
-                **edge_tensors(self.edges), "info": dict(self.info)}
+        sd = {"kind": GRAPH_KIND, "format": 1, "centroids": self.centroids.float(), "bind_metric": self.bind_metric,
+              **edge_tensors(self.edges), "info": dict(self.info)}
+        return {**sd, "content_digest": content_digest(sd)}
 
     def save(self, path: str | Path) -> Path:
         atomic_torch_save(self.state_dict(), path)
@@ -125,12 +160,8 @@ class TransitionGraph:
 
     @classmethod
     def load(cls, path: str | Path) -> "TransitionGraph":
-        path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(f"no graph at {path}; build one with `python -m ncs_lite graph`")
-        sd = torch.load(path, weights_only=True, map_location="cpu")
-        if not isinstance(sd, dict) or sd.get("format") != 1:
-            raise ValueError(f"{path} is not an ncs-lite transition graph (format 1)")
+        sd = check_graph_file(load_tensor_file(path, "transition graph", "build one with `python -m ncs_lite graph`"),
+                              path, GRAPH_KIND, "transition graph")
         graph = cls(sd["centroids"], sd["bind_metric"], {}, sd["info"])
         for (s, d), a, n in zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(), sd["edge_count"].tolist()):
             graph.edges.setdefault((s, d), Counter())[tuple(round(v, ACTION_DECIMALS) for v in a)] += n
