@@ -66,9 +66,33 @@ def test_occupied_target_is_noop(env):
 
 def test_off_grid_target_is_noop(env):
     a = env.pick_and_move(0, 0)
-    a[3:5] = 0.6 - a[:2]             # far outside the 0.4 m grid
+    a[3:5] = (0.4, 0.0)              # the largest move: x = w + 0.4 >= 0.25, beyond the 0.2 m half-grid
     _, _, _, _, info = env.step(a)
     assert info["moved"] == -1
+
+
+def test_bad_actions_and_configs_are_refused_by_name():
+    from ncs_lite.envs import make
+
+    env = make("block-rearrange", num_objects=2)
+    with pytest.raises(ValueError, match=r"step\(\) before reset"):
+        env.step(np.zeros(6, np.float32))
+    env.reset(seed=0)
+    for bad, match in ((np.full(6, 5.0), "outside the action space"), (np.ones(6, bool), "dtype bool"),
+                       (np.ones(6, complex), "dtype complex")):
+        with pytest.raises(ValueError, match=match):
+            env.step(bad)
+    env.close()
+    with pytest.raises(ValueError, match="closed env"):
+        env.step(np.zeros(6, np.float32))
+    for kwargs, match in (({"horizon_multiplier": float("nan")}, "horizon_multiplier must be a finite"),
+                          ({"horizon_multiplier": float("inf")}, "horizon_multiplier must be a finite"),
+                          ({"num_objects": "4"}, "num_objects must be an integer"),
+                          ({"cell": 0}, "cell must be a finite number > 0"),
+                          ({"pick_threshold": -1.0}, "pick_threshold must be"),
+                          ({"image_size": 0}, "image_size must be an integer >= 8")):
+        with pytest.raises(ValueError, match=match):
+            make("block-rearrange", **kwargs)
 
 
 def test_success_terminates(env):
@@ -84,7 +108,7 @@ def test_truncation_at_horizon():
     e = make("block-rearrange", num_objects=2, horizon_multiplier=1.5)
     _, info = e.reset(seed=0)
     assert info["horizon"] == 3
-    flags = [e.step(np.zeros(6, np.float32) + 5)[3] for _ in range(3)]  # far away: no-ops
+    flags = [e.step(np.zeros(6, np.float32))[3] for _ in range(3)]  # grid centre: 7 cm from any cube, no pick
     assert flags == [False, False, True]
     e.close()
 

@@ -81,6 +81,25 @@ class BlockRearrangeConfig:
     image_size: int = 64
 
     def __post_init__(self):
+        def integer(name, low):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+
+        def positive(name, allow_zero=False):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                    or not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+                raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
+
+        integer("num_objects", 1)
+        integer("grid_size", 1)
+        integer("image_size", 8)
+        if self.num_constrained is not None:
+            integer("num_constrained", 1)
+        for name in ("horizon_multiplier", "cell", "cube", "pick_threshold", "success_threshold"):
+            positive(name)
+        positive("action_noise", allow_zero=True)
         cells = self.grid_size ** 2
         if self.goal not in ("complete", "partial"):
             raise ValueError(f"goal must be 'complete' or 'partial', got {self.goal!r}")
@@ -96,10 +115,6 @@ class BlockRearrangeConfig:
         if self.goal == "complete" and self.num_constrained not in (None, self.num_objects):
             raise ValueError("complete goals constrain every cube; leave num_constrained unset "
                              f"(got {self.num_constrained})")
-        if self.horizon_multiplier <= 0:
-            raise ValueError(f"horizon_multiplier must be > 0, got {self.horizon_multiplier}")
-        if self.action_noise < 0 or not np.isfinite(self.action_noise):
-            raise ValueError(f"action_noise must be a finite std >= 0, got {self.action_noise}")
 
     @property
     def constrained(self) -> int:
@@ -246,16 +261,31 @@ class BlockRearrange(gym.Env):
             pb.disconnect(physicsClientId=self._client)
             self._client = None
 
+    def __del__(self):          # an env dropped without close() must not keep its PyBullet client
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - the interpreter may be shutting down
+            pass
+
     # --------------------------------------------------------------- helpers
     def _validate_action(self, action) -> np.ndarray:
-        try:
-            a = np.asarray(action, dtype=np.float32)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be 6 numbers (w, dw), got {action!r}") from exc
+        if getattr(self, "_client", None) is None:
+            raise ValueError("step() on a closed env; make a new one")
+        if self._image is None:
+            raise ValueError("step() before reset(): call env.reset(seed=...) first")
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "fiu":        # bool, complex, strings, objects
+            raise ValueError(f"action must be 6 numbers (w, dw) of a real dtype, got dtype {raw.dtype}: {action!r}")
+        a = raw.astype(np.float32)
         if a.shape != (6,):
             raise ValueError(f"action must have shape (6,) = (w, dw), got {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action must be finite, got {a.tolist()}")
+        low, high = self.action_space.low, self.action_space.high
+        slack = 1e-6 * (high - low)            # float32 rounding of values on the bounds
+        if np.any(a < low - slack) or np.any(a > high + slack):
+            raise ValueError(f"action {np.round(a, 4).tolist()} is outside the action space: low "
+                             f"{low.tolist()}, high {high.tolist()} (metres)")
         return a
 
     def _apply(self, action: np.ndarray) -> int:
