@@ -42,11 +42,12 @@ def comparison_assets(preset: str = "reduced", seed: int = 0) -> dict:
     Other presets: the dSLATE of `obtain_dslate`, the policies of `obtain_policy`, and the
     graphs built here from the cached graph buffer (cached transitions, seconds)."""
     from .baselines import SetGraph, set_graph_from_transitions
+    from .evaluation import learned_perception
     from .baselines.runs import load_trained_policy, obtain_policy
     from .data import cached_buffer
     from .inference import load_dslate, obtain_dslate, shipped_asset
     from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import DSlatePerception, OraclePerception, buffer_transitions
+    from .ncs.perception import OraclePerception, buffer_transitions
 
     if preset == "reduced":
         env = "block-rearrange"
@@ -64,7 +65,8 @@ def comparison_assets(preset: str = "reduced", seed: int = 0) -> dict:
     data = cached_buffer(GRAPH_EPISODES[preset], seed=seed)
     clusters = CLUSTERS[preset]
     out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset}
-    for name, perception in (("", DSlatePerception(model)), ("oracle_", OraclePerception())):
+    # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
+    for name, perception in (("", learned_perception(model, 4)), ("oracle_", OraclePerception())):
         st, st1, acts, true = buffer_transitions(perception, data)
         graph = build_graph(st, st1, acts, clusters=clusters, seed=seed, true_entity=true)
         out[f"{name}graph"] = graph
@@ -85,8 +87,10 @@ def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partia
     unknown = sorted(set(methods) - set(COMPARED))
     if unknown:
         raise ValueError(f"unknown methods {unknown}; expected some of {', '.join(COMPARED)}")
+    from .baselines import mpc_config
     from .utils import progress
 
+    mpc = mpc_config(assets.get("preset", "reduced"))     # ci: a small CEM; reduced, paper: Appendix B's
     rows = []
     cells = [(g, k, m) for g in goals for k in counts for m in methods]
     for goal, k, label in progress(cells, desc="comparison"):
@@ -95,6 +99,7 @@ def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partia
         tasks = TaskSet(num_objects=k, goal=goal, horizon_multiplier=horizon_multiplier, episodes=n, seed=seed)
         kw = {"graph": next((assets[a] for a in needs if a.endswith("graph")), None),
               "model": assets["model"] if "model" in needs else None,
-              "policy": assets[method] if method in ("bc", "iql") else None}
+              "policy": assets[method] if method in ("bc", "iql") else None,
+              "mpc": mpc if method == "mpc" else None}
         rows += evaluate_method(method, tasks, seed=seed, label=label, cache=cache, **kw)
     return rows

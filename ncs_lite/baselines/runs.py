@@ -130,8 +130,8 @@ def obtain_policy(method: str, preset: str = "reduced", seed: int = 0, env: str 
         else:
             force = True
             print(f"obtain_policy: retraining {path} from scratch: {why}")
-    model, _ = train_policy(method, cfg, data, path, env, resume=resume, force=force)
-    return model, path
+    train_policy(method, cfg, data, path, env, resume=resume, force=force)
+    return load_trained_policy(path, method), path          # with its log, info and step
 
 
 # ---------------------------------------------------------------------- CLI
