@@ -35,6 +35,12 @@ class TaskSet:
     seed: int = 0
 
     def __post_init__(self):
+        # 4 and 4.0 are one task set: one cache key and one CSV value
+        for name in ("horizon_multiplier", "action_noise"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            object.__setattr__(self, name, float(value))
         if not isinstance(self.episodes, int) or self.episodes < 1:
             raise ValueError(f"episodes must be a positive integer, got {self.episodes!r}")
         if not isinstance(self.seed, int) or self.seed < 0:

@@ -193,3 +193,13 @@ def test_nf_graph_cli_and_nf_oracle_on_the_harness(tmp_path, capsys):
     assert summarize(rows)[0]["episodes"] == 2
     assert main(["evaluate", "--method", "nf-oracle", "--graph", out, "--state", "slot", "--episodes", "1"]) == 2
     assert "built on 'mask' states" in capsys.readouterr().err
+
+
+def test_a_task_set_is_one_key_whatever_the_number_type():
+    from dataclasses import asdict
+
+    from ncs_lite.cache import digest
+
+    assert digest(asdict(TaskSet(horizon_multiplier=4))) == digest(asdict(TaskSet(horizon_multiplier=4.0)))
+    with pytest.raises(ValueError, match="horizon_multiplier must be a number"):
+        TaskSet(horizon_multiplier="4")
