@@ -65,8 +65,9 @@ def _evaluate(args):
 
     sections = split_overrides(args.overrides, ("ncs", "mpc"))
     needs = NEEDS.get(args.method, ())
-    state = args.state or next((parse_override(o)[1] for o in sections["ncs"]
-                                if parse_override(o)[0] == "ncs.state"), "mask")
+    asked = args.state or next((parse_override(o)[1] for o in sections["ncs"]
+                                if parse_override(o)[0] == "ncs.state"), None)
+    state = asked or "mask"      # the shipped graph to default to
     # without a path, a method runs from the shipped `reduced` assets of --env
     paths = {"graph": args.graph, "model": args.checkpoint, "policy": args.policy}
     for need in needs:
@@ -76,7 +77,6 @@ def _evaluate(args):
         graph = (SetGraph if args.method.startswith("nf") else TransitionGraph).load(paths["graph"])
     # the agent reads the kind of state its graph was built on: unless --state (or
     # --set ncs.state) says otherwise, and then the graph must agree (checked below)
-    asked = args.state is not None or any(parse_override(o)[0] == "ncs.state" for o in sections["ncs"])
     cfg = ncs_config(sections["ncs"], state=args.state if asked or graph is None else graph.state)
     if graph is not None:
         try:

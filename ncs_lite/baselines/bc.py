@@ -13,13 +13,13 @@ Appendix B gives no sizes for BC; the presets are the kit's: `ci` (seconds), `re
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from .goal_conditioned import (ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer,
+from .goal_conditioned import (preset_config, ActionBox, HindsightGoals, PixelEncoder, PolicyAgent, as_buffer,
                                check_channels, check_int, load_policy, mlp, run_training, save_policy,
                                training_setup)
 
@@ -55,13 +55,7 @@ BC_PRESETS = {
 
 def bc_config(preset: str = "reduced", **overrides) -> BCConfig:
     """A fresh copy of a named preset, with field overrides."""
-    if preset not in BC_PRESETS:
-        raise ValueError(f"unknown BC preset {preset!r}; expected one of {sorted(BC_PRESETS)}")
-    names = [f.name for f in fields(BCConfig)]
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise ValueError(f"unknown BCConfig fields {unknown}; expected some of {names}")
-    return replace(BC_PRESETS[preset], **overrides).validate()
+    return preset_config(BC_PRESETS, preset, overrides, "BC")
 
 
 class BCPolicy(nn.Module):

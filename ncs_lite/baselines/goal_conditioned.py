@@ -16,7 +16,7 @@ Shapes: B batch, E episodes, T frames per episode (5), H = W = 64 pixels.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +43,18 @@ def check_channels(channels, image_size: int = 64) -> None:
     if image_size % 2 ** len(channels):
         raise ValueError(f"{len(channels)} stride-2 convolutions need an image size divisible by "
                          f"{2 ** len(channels)}, got {image_size}")
+
+
+def preset_config(presets: dict, preset: str, overrides: dict, what: str):
+    """A fresh copy of `presets[preset]` with field overrides, validated (BC, IQL and MPC)."""
+    if preset not in presets:
+        raise ValueError(f"unknown {what} preset {preset!r}; expected one of {sorted(presets)}")
+    cls = type(presets[preset])
+    names = [f.name for f in fields(cls)]
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} fields {unknown}; expected some of {names}")
+    return replace(presets[preset], **overrides).validate()
 
 
 def config_from_dict(cls, d: dict):

@@ -32,12 +32,12 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
-from .goal_conditioned import (ActionBox, PixelEncoder, PolicyAgent,
+from .goal_conditioned import (preset_config, ActionBox, PixelEncoder, PolicyAgent,
                                check_channels, check_int, load_policy, mlp, run_training, save_policy,
                                training_setup)
 
@@ -89,13 +89,7 @@ IQL_PRESETS = {
 def iql_config(preset: str = "reduced", **overrides) -> IQLConfig:
     """A fresh copy of a named preset, with field overrides. Only sizes differ between
     presets; the IQL hyperparameters are the IQL paper's in all three."""
-    if preset not in IQL_PRESETS:
-        raise ValueError(f"unknown IQL preset {preset!r}; expected one of {sorted(IQL_PRESETS)}")
-    names = [f.name for f in fields(IQLConfig)]
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise ValueError(f"unknown IQLConfig fields {unknown}; expected some of {names}")
-    return replace(IQL_PRESETS[preset], **overrides).validate()
+    return preset_config(IQL_PRESETS, preset, overrides, "IQL")
 
 
 # ----------------------------------------------------------------------------- the pieces

@@ -24,13 +24,14 @@ The CEM settings are the appendix's (10 iterations, elite ratio 0.05, population
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from ..ncs.policy import align
 from .cem import CEMConfig, cem_minimize
+from .goal_conditioned import preset_config
 
 
 @dataclass
@@ -53,13 +54,7 @@ MPC_PRESETS = {
 
 def mpc_config(preset: str = "reduced", **overrides) -> MPCConfig:
     """A fresh copy of a named preset, with field overrides."""
-    if preset not in MPC_PRESETS:
-        raise ValueError(f"unknown MPC preset {preset!r}; expected one of {sorted(MPC_PRESETS)}")
-    names = [f.name for f in fields(MPCConfig)]
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise ValueError(f"unknown MPCConfig fields {unknown}; expected some of {names}")
-    return replace(MPC_PRESETS[preset], **overrides).validate()
+    return preset_config(MPC_PRESETS, preset, overrides, "MPC")
 
 
 def slots_of(entities) -> torch.Tensor:
