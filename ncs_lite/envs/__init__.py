@@ -2,6 +2,7 @@
 
     env = ncs_lite.envs.make("block-rearrange", num_objects=4, goal="complete")
     env = gymnasium.make("ncs_lite/BlockRearrange-v0", num_objects=4)
+    env = ncs_lite.envs.make("robogym-rearrange", num_objects=4)   # MuJoCo, imported on first use
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from .block_rearrange import PALETTE, BlockRearrange, BlockRearrangeConfig
 # name used by the CLI and `make` -> (gymnasium id, entry point)
 ENVIRONMENTS = {
     "block-rearrange": ("ncs_lite/BlockRearrange-v0", "ncs_lite.envs.block_rearrange:BlockRearrange"),
+    "robogym-rearrange": ("ncs_lite/RobogymRearrange-v0", "ncs_lite.envs.robogym_rearrange:RobogymRearrange"),
 }
 
 for _env_id, _entry in ENVIRONMENTS.values():

@@ -20,6 +20,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from .common import check_action, check_integer, check_number, check_task, constrained_count, horizon
+
 
 def _import_pybullet_quietly():
     """`import pybullet` without the "pybullet build time: ..." line its C extension writes to
@@ -81,46 +83,19 @@ class BlockRearrangeConfig:
     image_size: int = 64
 
     def __post_init__(self):
-        def integer(name, low):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
-
-        def positive(name, allow_zero=False):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
-                    or not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-                raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
-
-        integer("num_objects", 1)
-        integer("grid_size", 1)
-        integer("image_size", 8)
-        if self.num_constrained is not None:
-            integer("num_constrained", 1)
-        for name in ("horizon_multiplier", "cell", "cube", "pick_threshold", "success_threshold"):
-            positive(name)
-        positive("action_noise", allow_zero=True)
+        check_task(self, max_objects=len(PALETTE))
+        check_integer(self, "grid_size", 1)
+        for name in ("cell", "cube", "pick_threshold", "success_threshold"):
+            check_number(self, name)
         cells = self.grid_size ** 2
-        if self.goal not in ("complete", "partial"):
-            raise ValueError(f"goal must be 'complete' or 'partial', got {self.goal!r}")
-        if not 1 <= self.num_objects <= len(PALETTE):
-            raise ValueError(f"num_objects must be in 1..{len(PALETTE)}, got {self.num_objects}")
         if 2 * self.constrained > cells:
             raise ValueError(
                 f"{self.constrained} constrained cubes need {2 * self.constrained} distinct "
                 f"cells (start and goal) but the grid has {cells}")
-        if self.num_constrained is not None and not 1 <= self.num_constrained <= self.num_objects:
-            raise ValueError(f"num_constrained must be in 1..num_objects={self.num_objects}, "
-                             f"got {self.num_constrained}")
-        if self.goal == "complete" and self.num_constrained not in (None, self.num_objects):
-            raise ValueError("complete goals constrain every cube; leave num_constrained unset "
-                             f"(got {self.num_constrained})")
 
     @property
     def constrained(self) -> int:
-        if self.goal == "complete":
-            return self.num_objects
-        return self.num_constrained if self.num_constrained is not None else max(1, self.num_objects // 2)
+        return constrained_count(self)
 
     @property
     def half_extent(self) -> float:
@@ -133,7 +108,8 @@ class BlockRearrange(gym.Env):
 
     Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
     info: ground truth for metrics and the oracle only (no learned agent may read it):
-      positions (k, 3), colors (k, 3), goal_positions (k, 3), constrained (k,) bool,
+      positions (k, 3), colors (k, 3), types (k, 3) what a cube is (= its colour),
+      goal_positions (k, 3), constrained (k,) bool,
       masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
       -1 for a no-op), min_steps, horizon, is_success.
     """
@@ -231,7 +207,7 @@ class BlockRearrange(gym.Env):
         self._goal_cell = self._cell_of.copy()
         self._goal_cell[self._constrained] = cells[k:]
         self.min_steps = int(m)
-        self.horizon = max(1, int(np.ceil(cfg.horizon_multiplier * self.min_steps)))
+        self.horizon = horizon(cfg, self.min_steps)
         self._steps = 0
         # The goal image shows only the constrained cubes, at their goal cells.
         self._place(self._goal_cell, visible=self._constrained)
@@ -269,24 +245,8 @@ class BlockRearrange(gym.Env):
 
     # --------------------------------------------------------------- helpers
     def _validate_action(self, action) -> np.ndarray:
-        if getattr(self, "_client", None) is None:
-            raise ValueError("step() on a closed env; make a new one")
-        if self._image is None:
-            raise ValueError("step() before reset(): call env.reset(seed=...) first")
-        raw = np.asarray(action)
-        if raw.dtype.kind not in "fiu":        # bool, complex, strings, objects
-            raise ValueError(f"action must be 6 numbers (w, dw) of a real dtype, got dtype {raw.dtype}: {action!r}")
-        a = raw.astype(np.float32)
-        if a.shape != (6,):
-            raise ValueError(f"action must have shape (6,) = (w, dw), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        low, high = self.action_space.low, self.action_space.high
-        slack = 1e-6 * (high - low)            # float32 rounding of values on the bounds
-        if np.any(a < low - slack) or np.any(a > high + slack):
-            raise ValueError(f"action {np.round(a, 4).tolist()} is outside the action space: low "
-                             f"{low.tolist()}, high {high.tolist()} (metres)")
-        return a
+        return check_action(action, self.action_space, closed=getattr(self, "_client", None) is None,
+                            reset=self._image is not None)
 
     def _apply(self, action: np.ndarray) -> int:
         """Pick and move; return the index of the moved cube, or -1 for a no-op."""
@@ -314,7 +274,7 @@ class BlockRearrange(gym.Env):
         satisfied = np.linalg.norm(pos - goal, axis=1) <= cfg.success_threshold
         info = {
             "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
-            "constrained": self._constrained.copy(), "masks": masks,
+            "types": self._colors.copy(), "constrained": self._constrained.copy(), "masks": masks,
             "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved),
             "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
             "is_success": bool(np.all(satisfied[self._constrained])),

@@ -56,7 +56,8 @@ ORACLE_STATES = {"mask": "mask", "slot": "position"}
 class OraclePerception:
     """Ground-truth entities (for the `ncs-oracle` agent only: it reads `info`).
 
-    type = the cube's colour; state = its segmentation mask pooled to the state grid
+    type = what the object is (`info["types"]`: a cube's colour; colour and shape in
+    robogym-rearrange); state = its segmentation mask pooled to the state grid
     ("mask", D = 256) or its position ("position", D = 3), the ground truth that the slot's
     state half s stands for. A graph of positions is built with the slot metrics (Table 3's
     second column, `graph_state` "slot").
@@ -89,12 +90,12 @@ class OraclePerception:
 
     def current(self, obs, info) -> Entities:
         masks = torch.as_tensor(np.asarray(info["masks"])).float()
-        return Entities(torch.as_tensor(info["colors"]).float(), self._states(masks, info["positions"]), masks)
+        return Entities(torch.as_tensor(info["types"]).float(), self._states(masks, info["positions"]), masks)
 
     def goal(self, obs, info) -> Entities:
         keep = np.asarray(info["constrained"])
         masks = torch.as_tensor(np.asarray(info["goal_masks"])[keep]).float()
-        return Entities(torch.as_tensor(info["colors"][keep]).float(),
+        return Entities(torch.as_tensor(info["types"][keep]).float(),
                         self._states(masks, np.asarray(info["goal_positions"])[keep]), masks)
 
     def transitions(self, buffer: dict):

@@ -1,0 +1,435 @@
+"""Robogym-rearrange (Appendix C): k objects of 94 shapes and 13 colours on a 0.6 x 0.8 table.
+
+Adapted from the rearrange task of OpenAI's robogym (its robot replaced by a pick-and-move
+primitive, as in the paper): objects differ in shape, size and orientation, positions are
+continuous, and the bird's-eye camera's perspective makes an object look a little different
+in different places. MuJoCo (official bindings) simulates and renders it headless.
+
+Arena coordinates are metres, origin at the table's centre, z up, the table top at z = 0;
++x is to the right of the image, +y towards its top. Each object is scaled so that its
+longest dimension is `object_size` (tall thin objects look smaller from above), turned by a
+random yaw at reset that it keeps for the episode (orientation is unchanged by moves and
+goals), and sits on the table.
+
+Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored. In order:
+  1. pick: the object whose centre is nearest to `w` (x, y) and within `pick_threshold`;
+     none -> no-op.
+  2. place at `w + dw`: a target where the object would hang over the table's edge or
+     overlap another object -> no-op. Otherwise the object is put there at rest on the
+     table, with its orientation, and the physics settles for `settle_steps` steps.
+A constraint holds when its object is within `success_threshold` (x, y) of its goal.
+
+Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, this module
+picks EGL, then OSMesa, whichever library the system has; with neither, making the env
+fails with a message naming both (see `_renderer`).
+"""
+from __future__ import annotations
+
+import ctypes.util
+import os
+import sys
+from dataclasses import asdict, dataclass
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .common import check_action, check_integer, check_number, check_task, constrained_count, horizon
+from .objects import COLOURS, OBJECTS, load_mesh
+
+GL_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+
+
+def _choose_gl() -> str | None:
+    """Set MUJOCO_GL to the first headless backend whose library exists, unless it is set
+    already (or mujoco was imported already, which fixed it). Returns the choice."""
+    if "MUJOCO_GL" in os.environ or "mujoco" in sys.modules:
+        return os.environ.get("MUJOCO_GL")
+    for backend, lib in GL_LIBRARIES.items():
+        if ctypes.util.find_library(lib):
+            os.environ["MUJOCO_GL"] = backend
+            return backend
+    return None
+
+
+_GL = _choose_gl()
+import mujoco  # noqa: E402 - after MUJOCO_GL is chosen
+
+TABLE_RGB = (0.55, 0.50, 0.45)
+FLOOR_RGB = (0.25, 0.25, 0.28)
+HIDDEN_GROUP = 5          # geoms of unused shapes, and of unconstrained objects in the goal image
+
+
+@dataclass(frozen=True)
+class RobogymRearrangeConfig:
+    """Everything that defines a robogym-rearrange task distribution (stored with data)."""
+
+    num_objects: int = 4
+    goal: str = "complete"            # "complete": every object moves; "partial": a subset
+    num_constrained: int | None = None
+    horizon_multiplier: float = 4.0   # horizon = ceil(multiplier x minimum steps)
+    action_noise: float = 0.0         # std (m) of Gaussian noise added to (w, dw) each step
+    table_x: float = 0.6              # table size (m), Appendix C
+    table_y: float = 0.8
+    object_size: float = 0.12         # every object's longest dimension (m)
+    gap: float = 0.005                # min clearance (m) between sampled footprints
+    pick_threshold: float = 0.05      # Appendix C: match threshold of the pick
+    success_threshold: float = 0.05   # ... and of the goal placement
+    settle_steps: int = 10            # physics steps (2 ms each) after a placement
+    camera_tilt: float = 15.0         # degrees from straight down: visible perspective
+    image_size: int = 64
+
+    def __post_init__(self):
+        check_task(self, max_objects=len(COLOURS))
+        check_integer(self, "settle_steps", 0)
+        for name in ("table_x", "table_y", "object_size", "pick_threshold", "success_threshold"):
+            check_number(self, name)
+        check_number(self, "gap", allow_zero=True)
+        check_number(self, "camera_tilt", allow_zero=True)
+        if self.camera_tilt >= 60:
+            raise ValueError(f"camera_tilt must be < 60 degrees (a bird's-eye view), got {self.camera_tilt}")
+        if self.object_size > min(self.table_x, self.table_y) / 2:
+            raise ValueError(f"object_size {self.object_size} m does not fit a "
+                             f"{self.table_x} x {self.table_y} m table twice over")
+
+    @property
+    def constrained(self) -> int:
+        return constrained_count(self)
+
+
+def object_geometry(entry, size: float, asset_name: str = "mesh") -> dict:
+    """One object, scaled so its longest dimension is `size`: its MJCF geom attributes (an
+    optional mesh asset), its resting height (centre above the table) and footprint radius
+    (a circle around the centre that holds it at any yaw)."""
+    name, kind, spec = entry
+    if kind == "mesh":
+        v, f = load_mesh(*spec[:1], tuple(spec[1]), spec[2])
+        lo, hi = v.min(0), v.max(0)
+        v = (v - (lo + hi) / 2) * (size / float((hi - lo).max()))     # centred, longest side = size
+        asset = f'<mesh name="{asset_name}" inertia="convex" vertex="{_fmt(v)}" face="{" ".join(map(str, f.ravel()))}"/>'
+        return {"geom": f'type="mesh" mesh="{asset_name}"', "asset": asset, "rest": float(-v[:, 2].min()),
+                "radius": float(np.linalg.norm(v[:, :2], axis=1).max())}
+    p = np.asarray([x for x in spec if not isinstance(x, str)], float)
+    lying = "lying" in spec
+    if kind == "box":
+        half = p / p.max() * size / 2
+        return {"geom": f'type="box" size="{_fmt(half)}"', "rest": half[2], "radius": float(np.hypot(*half[:2]))}
+    if kind == "sphere":
+        return {"geom": f'type="sphere" size="{size / 2}"', "rest": size / 2, "radius": size / 2}
+    if kind == "ellipsoid":
+        radii = p / p.max() * size / 2
+        return {"geom": f'type="ellipsoid" size="{_fmt(radii)}"', "rest": radii[2], "radius": float(radii[:2].max())}
+    # cylinder (diameter, length) and capsule (diameter, length of its straight part)
+    d, length = p
+    total = length + d if kind == "capsule" else length
+    s = size / max(d, total)
+    r, half_len, half_total = d * s / 2, length * s / 2, total * s / 2
+    turn = ' quat="0.70710678 0 0.70710678 0"' if lying else ""    # axis along x
+    return {"geom": f'type="{kind}" size="{r} {half_len}"{turn}',
+            "rest": r if lying else half_total,
+            "radius": float(np.hypot(half_total, r)) if lying else r}
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.6g}" for x in np.ravel(v))
+
+
+def _yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+class RobogymRearrange(gym.Env):
+    """Goal-conditioned rearrangement of varied objects with image observations.
+
+    Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
+    info (ground truth for metrics and the oracle only; no learned agent may read it): the
+    block-rearrange contract (positions (k, 3), colors (k, 3), goal_positions (k, 3),
+    constrained, masks, goal_masks, satisfied, moved, min_steps, horizon, steps,
+    is_success) plus shapes (k,) indices into `objects.OBJECTS` and types (k, 3 + 94): the
+    colour and a one-hot shape, what an object is.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
+                 horizon_multiplier: float = 4.0, action_noise: float = 0.0,
+                 render_mode: str | None = None, **kwargs):
+        self._renderer = None
+        self.config = cfg = RobogymRearrangeConfig(
+            num_objects=num_objects, goal=goal, num_constrained=num_constrained,
+            horizon_multiplier=horizon_multiplier, action_noise=action_noise, **kwargs)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        hx, hy = cfg.table_x / 2, cfg.table_y / 2
+        self.action_space = spaces.Box(
+            low=np.array([-hx, -hy, 0.0, -2 * hx, -2 * hy, -0.1], np.float32),
+            high=np.array([hx, hy, 0.1, 2 * hx, 2 * hy, 0.1], np.float32), dtype=np.float32)
+        img = spaces.Box(0, 255, (cfg.image_size, cfg.image_size, 3), np.uint8)
+        self.observation_space = spaces.Dict({"image": img, "goal": img})
+
+        self._geometry = [object_geometry(e, cfg.object_size, f"shape{j}") for j, e in enumerate(OBJECTS)]
+        self._rest = np.array([g["rest"] for g in self._geometry])
+        self._radius = np.array([g["radius"] for g in self._geometry])
+        self.model = mujoco.MjModel.from_xml_string(self._mjcf())
+        self.data = mujoco.MjData(self.model)
+        k, n = cfg.num_objects, len(OBJECTS)
+        # geom ids: _geom[i, j] = object slot i drawn as shape j
+        self._geom = np.array([[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"o{i}s{j}")
+                                for j in range(n)] for i in range(k)])
+        # collision filtering starts at the body level, fixed at compile from the geoms (all
+        # hidden then): objects must collide whatever shape they show
+        bodies = self.model.geom_bodyid[self._geom[:, 0]]
+        self.model.body_contype[bodies] = 1
+        self.model.body_conaffinity[bodies] = 1
+        self._renderer = _renderer(self.model, cfg.image_size)
+        self._scene_option = mujoco.MjvOption()
+        self._scene_option.geomgroup[HIDDEN_GROUP] = 0
+        self._shapes = np.zeros(k, np.int64)
+        self._colors = COLOURS[:k].copy()
+        self._yaw = np.zeros(k)
+        self._goal = np.zeros((k, 2))
+        self._constrained = np.zeros(k, bool)
+        self._image = self._goal_image = None
+        self._steps = 0
+
+    # ----------------------------------------------------------------- scene
+    def _mjcf(self) -> str:
+        cfg = self.config
+        hx, hy = cfg.table_x / 2, cfg.table_y / 2
+        t = np.radians(cfg.camera_tilt)
+        height = 1.0
+        # the view spans the table's long side plus a margin, seen from `height` at `tilt`
+        fovy = 2 * np.degrees(np.arctan((hy + 0.02) * np.cos(t) / height))
+        cam_pos = (0.0, -height * np.tan(t), height)
+        assets = "".join(g.get("asset", "") for g in self._geometry)
+        bodies = []
+        for i in range(cfg.num_objects):
+            geoms = "".join(f'<geom name="o{i}s{j}" {g["geom"]} group="{HIDDEN_GROUP}" contype="0" conaffinity="0"/>'
+                            for j, g in enumerate(self._geometry))
+            bodies.append(f'<body name="o{i}" pos="{i} 5 1"><freejoint/>'
+                          f'<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>{geoms}</body>')
+        return f"""<mujoco model="robogym-rearrange">
+  <compiler inertiafromgeom="false"/>
+  <option timestep="0.002"/>
+  <visual><quality shadowsize="0" offsamples="0"/>
+    <headlight ambient="0.45 0.45 0.45" diffuse="0.45 0.45 0.45" specular="0 0 0"/></visual>
+  <asset>{assets}</asset>
+  <worldbody>
+    <light pos="0.3 -0.3 2" dir="-0.15 0.15 -1" diffuse="0.4 0.4 0.4" castshadow="false"/>
+    <geom name="floor" type="plane" size="3 3 0.1" pos="0 0 -0.4" rgba="{_fmt(FLOOR_RGB)} 1" contype="0" conaffinity="0"/>
+    <geom name="table" type="box" size="{hx} {hy} 0.02" pos="0 0 -0.02" rgba="{_fmt(TABLE_RGB)} 1"/>
+    <camera name="top" pos="{_fmt(cam_pos)}" xyaxes="1 0 0 0 {np.cos(t):.6f} {np.sin(t):.6f}" fovy="{fovy:.4f}"/>
+    {''.join(bodies)}
+  </worldbody>
+</mujoco>"""
+
+    def _show(self, visible: np.ndarray) -> None:
+        """Make slot i show its shape (visible[i]) or nothing; only shown shapes collide."""
+        m = self.model
+        m.geom_group[self._geom] = HIDDEN_GROUP
+        m.geom_contype[self._geom] = 0
+        m.geom_conaffinity[self._geom] = 0
+        active = self._geom[np.arange(len(self._shapes)), self._shapes]
+        m.geom_rgba[active, :3] = self._colors
+        m.geom_rgba[active, 3] = 1.0
+        m.geom_group[active[visible]] = 0
+        m.geom_contype[active[visible]] = 1
+        m.geom_conaffinity[active[visible]] = 1
+
+    def _set_pose(self, i: int, xy) -> None:
+        q = self.data.qpos[7 * i: 7 * i + 7]
+        q[:2], q[2], q[3:] = xy, self._rest[self._shapes[i]], _yaw_quat(self._yaw[i])
+        self.data.qvel[6 * i: 6 * i + 6] = 0.0
+
+    def _settle(self) -> None:
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        for _ in range(self.config.settle_steps):
+            mujoco.mj_step(self.model, self.data)
+
+    def _render(self):
+        """One RGB pass and one segmentation pass -> (H, W, 3) uint8, (k, H, W) bool masks."""
+        r = self._renderer
+        r.update_scene(self.data, "top", scene_option=self._scene_option)
+        rgb = r.render().copy()
+        r.enable_segmentation_rendering()
+        try:
+            r.update_scene(self.data, "top", scene_option=self._scene_option)
+            seg = r.render()
+        finally:
+            r.disable_segmentation_rendering()
+        active = self._geom[np.arange(len(self._shapes)), self._shapes]
+        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        masks = (seg[None, ..., 0] == active[:, None, None]) & is_geom[None]
+        return rgb, masks
+
+    def positions(self) -> np.ndarray:
+        """(k, 3) object centres (x, y, z) in metres."""
+        return self.data.qpos.reshape(-1, 7)[:, :3].astype(np.float32).copy()
+
+    # ------------------------------------------------------------------- API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        cfg, rng = self.config, self.np_random
+        k, m = cfg.num_objects, cfg.constrained
+        self._shapes = rng.choice(len(OBJECTS), size=k, replace=False)
+        self._colors = COLOURS[rng.choice(len(COLOURS), size=k, replace=False)].copy()
+        self._yaw = rng.uniform(-np.pi, np.pi, size=k)
+        self._constrained = np.zeros(k, bool)
+        self._constrained[rng.choice(k, size=m, replace=False)] = True
+        # starts for all k objects, then goals for the constrained ones, no footprints overlapping
+        radii = self._radius[self._shapes]
+        spots = self._sample_spots(np.concatenate([radii, radii[self._constrained]]), rng)
+        start = spots[:k]
+        self._goal = start.copy()
+        self._goal[self._constrained] = spots[k:]
+        self.min_steps = int(m)
+        self.horizon = horizon(cfg, self.min_steps)
+        self._steps = 0
+        # the goal image: only the constrained objects, at their goals
+        self._show(self._constrained)
+        for i in range(k):
+            self._set_pose(i, self._goal[i])
+        mujoco.mj_forward(self.model, self.data)
+        self._goal_image, self._goal_masks = self._render()
+        self._show(np.ones(k, bool))
+        for i in range(k):
+            self._set_pose(i, start[i])
+        self._settle()
+        return self._observe(moved=-1)
+
+    def step(self, action):
+        action = check_action(action, self.action_space, closed=self._renderer is None,
+                              reset=self._image is not None)
+        cfg = self.config
+        if cfg.action_noise > 0:
+            action = action + self.np_random.normal(0.0, cfg.action_noise, 6).astype(np.float32)
+        moved = self._apply(action)
+        if moved >= 0:
+            self._settle()
+        self._steps += 1
+        obs, info = self._observe(moved)
+        terminated = bool(info["is_success"])
+        truncated = (not terminated) and self._steps >= self.horizon
+        return obs, float(terminated), terminated, truncated, info
+
+    def render(self):
+        return self._image.copy() if self.render_mode == "rgb_array" else None
+
+    def close(self):
+        if getattr(self, "_renderer", None) is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __del__(self):          # an env dropped without close() must free its GL context
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - the interpreter may be shutting down
+            pass
+
+    # --------------------------------------------------------------- helpers
+    def _sample_spots(self, radii: np.ndarray, rng) -> np.ndarray:
+        """Centres (n, 2) on the table for footprints of `radii`, pairwise clear by `gap`:
+        largest first, each uniform over where it fits (`_free_spot`); a dead end starts over."""
+        order = np.argsort(-radii, kind="stable")
+        for _ in range(20):
+            spots = np.zeros((len(radii), 2))
+            for n, i in enumerate(order):
+                p = self._free_spot(radii[i], spots[order[:n]], radii[order[:n]] + self.config.gap, rng)
+                if p is None:
+                    break
+                spots[i] = p
+            else:
+                return spots
+        raise RuntimeError(f"could not place {len(radii)} footprints of radii {np.round(radii, 3).tolist()} m "
+                           f"on the {self.config.table_x} x {self.config.table_y} m table; "
+                           "use fewer objects or a smaller object_size")
+
+    def _free_spot(self, r: float, centres: np.ndarray, radii: np.ndarray, rng, pitch: float = 0.005):
+        """A centre drawn uniformly (to `pitch`) among those where a footprint of radius r lies on
+        the table and clear of `centres` by r + radii; None when there is none. A random offset
+        of the candidate lattice keeps the draw continuous."""
+        cfg = self.config
+        lo = np.array([-cfg.table_x / 2 + r, -cfg.table_y / 2 + r])
+        hi = -lo
+        if np.any(hi < lo):
+            return None
+        offset = rng.uniform(0, pitch, 2)
+        xs, ys = (np.arange(lo[i] + offset[i], hi[i] + 1e-12, pitch) for i in range(2))
+        cand = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+        if len(centres):
+            d = np.linalg.norm(cand[:, None] - np.asarray(centres)[None], axis=2)
+            cand = cand[np.all(d >= r + np.asarray(radii)[None], axis=1)]
+        return cand[rng.integers(len(cand))] if len(cand) else None
+
+    def fits(self, obj: int, xy) -> bool:
+        """Whether object `obj` can be put down at xy: on the table, clear of every other."""
+        cfg = self.config
+        r = self._radius[self._shapes[obj]]
+        xy = np.asarray(xy, float)
+        if abs(xy[0]) > cfg.table_x / 2 - r or abs(xy[1]) > cfg.table_y / 2 - r:
+            return False
+        centres, radii = self.positions()[:, :2], self._radius[self._shapes]
+        others = np.arange(len(centres)) != obj
+        return bool(np.all(np.linalg.norm(centres[others] - xy, axis=1) >= radii[others] + r))
+
+    def _apply(self, action: np.ndarray) -> int:
+        """Pick and move; return the index of the moved object, or -1 for a no-op."""
+        w, target = action[:2], action[:2] + action[3:5]
+        dist = np.linalg.norm(self.positions()[:, :2] - w, axis=1)
+        picked = int(np.argmin(dist))
+        if dist[picked] > self.config.pick_threshold or not self.fits(picked, target):
+            return -1
+        self._set_pose(picked, target)
+        return picked
+
+    def _observe(self, moved: int):
+        self._image, masks = self._render()
+        cfg = self.config
+        pos = self.positions()
+        goal = np.concatenate([self._goal, self._rest[self._shapes][:, None]], 1).astype(np.float32)
+        satisfied = np.linalg.norm(pos[:, :2] - goal[:, :2], axis=1) <= cfg.success_threshold
+        types = np.concatenate([self._colors, np.eye(len(OBJECTS), dtype=np.float32)[self._shapes]], 1)
+        info = {
+            "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
+            "shapes": self._shapes.copy(), "types": types,
+            "constrained": self._constrained.copy(), "masks": masks,
+            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved),
+            "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
+            "is_success": bool(np.all(satisfied[self._constrained])),
+        }
+        return {"image": self._image.copy(), "goal": self._goal_image.copy()}, info
+
+    # ------------------------------------------------------- for data + tests
+    def pick_and_move(self, obj: int, xy) -> np.ndarray:
+        """The action that moves object `obj` to table position xy (no noise): (w, dw)."""
+        w = self.positions()[obj]
+        dw = np.asarray(xy, np.float32) - w[:2]
+        wz = np.clip(w[2], 0.0, float(self.action_space.high[2]))
+        return np.array([w[0], w[1], wz, dw[0], dw[1], 0.0], np.float32)
+
+    def random_pick_and_move(self, rng: np.random.Generator) -> np.ndarray:
+        """A 'video demonstration' action: a random object to a random place where it fits
+        (uniform over such places; back where it is if there is none)."""
+        obj = int(rng.integers(self.config.num_objects))
+        others = np.arange(self.config.num_objects) != obj
+        xy = self._free_spot(self._radius[self._shapes[obj]], self.positions()[others, :2],
+                             self._radius[self._shapes[others]], rng)
+        return self.pick_and_move(obj, self.positions()[obj, :2] if xy is None else xy)
+
+    def describe(self) -> dict:
+        return {"env": "robogym-rearrange", **asdict(self.config)}
+
+
+def _renderer(model, size: int):
+    """A headless MuJoCo renderer, or a RuntimeError that says what to install or set."""
+    try:
+        return mujoco.Renderer(model, size, size)
+    except Exception as e:  # noqa: BLE001 - GL setup fails in many library-specific ways
+        found = {b: bool(ctypes.util.find_library(lib)) for b, lib in GL_LIBRARIES.items()}
+        raise RuntimeError(
+            f"robogym-rearrange could not render headless with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} "
+            f"({type(e).__name__}: {e}). It needs EGL (libEGL, found: {found['egl']}) or OSMesa "
+            f"(libOSMesa, found: {found['osmesa']}): install Mesa's (e.g. `apt install libegl1` or "
+            "`libosmesa6`) and set MUJOCO_GL=egl or MUJOCO_GL=osmesa before Python starts") from e
