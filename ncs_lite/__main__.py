@@ -36,14 +36,19 @@ def _graph(args):
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
-    cfg = ncs_config(args.overrides, clusters=args.clusters, seed=args.seed, state=args.state)
+    from .data import load_manifest
+    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
+
+    env = load_manifest(args.data)["env"]["env"]          # Tables 3-4 give each env's defaults
+    cfg = ncs_config(args.overrides, clusters=args.clusters or CLUSTERS_BY_ENV.get(env), seed=args.seed,
+                     state=args.state or STATE_BY_ENV.get(env), edge_action=EDGE_ACTION_BY_ENV.get(env))
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
                                    restarts=cfg.restarts, state=cfg.state))
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
     graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
-                        seed=cfg.seed, true_entity=moved)                # info["state"] = cfg.state
+                        seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info
     graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
@@ -121,11 +126,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
     p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
     p.add_argument("--clusters", type=int, default=None,
-                   help="nodes (= --set ncs.clusters; Table 4: 30 for block-rearrange)")
+                   help="nodes (= --set ncs.clusters; default Table 4's: 30 block-rearrange, 45 robogym-rearrange)")
     p.add_argument("--seed", type=int, default=None, help="k-means seed (= --set ncs.seed)")
     p.add_argument("--state", default=None,
-                   help="entity state, Table 3: mask (default) | slot (= --set ncs.state; the oracle's "
-                        "stand-in for slot states is the cube's position)")
+                   help="entity state, Table 3: mask | slot (= --set ncs.state; default Table 3's: mask "
+                        "block-rearrange, slot robogym-rearrange; the oracle's stand-in for slot "
+                        "states is the object's position)")
     p.add_argument("--out", required=True)
     add_run_arguments(p)
     p.set_defaults(func=_graph)

@@ -224,6 +224,8 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
+    edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
+    #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
 
     def validate(self) -> "NCSConfig":
         for name, low in (("clusters", 1), ("restarts", 1), ("iterations", 1), ("extra_slots", 0),
@@ -234,6 +236,10 @@ class NCSConfig:
         states = ("mask", "slot")   # = sorted(ncs.graph.METRICS_BY_STATE), checked by a test
         if self.state not in states:
             raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
+        edge_actions = ("most_common", "nearest")   # = ncs.graph.EDGE_ACTIONS, checked by a test
+        if self.edge_action not in edge_actions:
+            raise ValueError(f"ncs.edge_action must be one of {', '.join(map(repr, edge_actions))}, "
+                             f"got {self.edge_action!r}")
         return self
 
 

@@ -71,7 +71,7 @@ class RobogymRearrangeConfig:
     action_noise: float = 0.0         # std (m) of Gaussian noise added to (w, dw) each step
     table_x: float = 0.6              # table size (m), Appendix C
     table_y: float = 0.8
-    object_size: float = 0.12         # every object's longest dimension (m)
+    object_size: float = 0.11         # every object's longest dimension (m)
     gap: float = 0.005                # min clearance (m) between sampled footprints
     pick_threshold: float = 0.05      # Appendix C: match threshold of the pick
     success_threshold: float = 0.05   # ... and of the goal placement
@@ -346,21 +346,19 @@ class RobogymRearrange(gym.Env):
                            f"on the {self.config.table_x} x {self.config.table_y} m table; "
                            "use fewer objects or a smaller object_size")
 
-    def _free_spot(self, r: float, centres: np.ndarray, radii: np.ndarray, rng, pitch: float = 0.005):
+    def _free_spot(self, r: float, centres: np.ndarray, radii: np.ndarray, rng, pitch: float = 0.01):
         """A centre drawn uniformly (to `pitch`) among those where a footprint of radius r lies on
         the table and clear of `centres` by r + radii; None when there is none. A random offset
         of the candidate lattice keeps the draw continuous."""
         cfg = self.config
         lo = np.array([-cfg.table_x / 2 + r, -cfg.table_y / 2 + r])
-        hi = -lo
-        if np.any(hi < lo):
+        if np.any(lo > 0):
             return None
         offset = rng.uniform(0, pitch, 2)
-        xs, ys = (np.arange(lo[i] + offset[i], hi[i] + 1e-12, pitch) for i in range(2))
+        xs, ys = (np.arange(lo[i] + offset[i], -lo[i] + 1e-12, pitch) for i in range(2))
         cand = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
-        if len(centres):
-            d = np.linalg.norm(cand[:, None] - np.asarray(centres)[None], axis=2)
-            cand = cand[np.all(d >= r + np.asarray(radii)[None], axis=1)]
+        for c, rc in zip(np.asarray(centres).reshape(-1, 2), np.asarray(radii).reshape(-1)):
+            cand = cand[((cand - c) ** 2).sum(1) >= (r + rc) ** 2]
         return cand[rng.integers(len(cand))] if len(cand) else None
 
     def fits(self, obj: int, xy) -> bool:

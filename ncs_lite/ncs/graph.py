@@ -11,6 +11,17 @@ From a buffer of transitions (entity states before and after, and the action tak
    for slot states). Each isolated transition adds the edge bind(s_t) -> bind(s_{t+1}),
    labelled with its action; identical actions are merged with a count.
 
+How an edge becomes an action (`edge_action`, a decision the paper leaves open):
+- "most_common" (block-rearrange): the edge's most frequent action. States are grid
+  cells, so every action on an edge picks the same cube and puts it in the same cell.
+- "nearest" (robogym-rearrange): positions are continuous and a node spans several
+  centimetres, more than the 0.05 pick and goal thresholds, so an arbitrary action of the
+  edge usually picks nothing or places wide. The graph keeps each transition's two entity
+  states with its action (self-loops too: a move within one node is a move), and the
+  action taken is that of the edge's transition whose start and end states are nearest
+  (bind metric, summed) to the current and goal states; `rank` > 0 takes the next nearest,
+  for a retry after a move that changed nothing.
+
 Shapes: M transitions, K entities per frame, D state features, N nodes.
 """
 from __future__ import annotations
@@ -23,7 +34,7 @@ import numpy as np
 import torch
 
 from ..utils import atomic_torch_save, load_tensor_file
-from .kmeans import assign, kmeans
+from .kmeans import assign, kmeans, pairwise_distances
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -32,6 +43,9 @@ METRICS_BY_STATE = {
 }
 BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
+STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Table 3's columns
+EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "nearest"}
+EDGE_ACTIONS = ("most_common", "nearest")
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 
 
@@ -61,7 +75,8 @@ def content_digest(sd: dict) -> str:
     """Digest of a graph file's tensors and metric (checked on load: a flipped byte shows)."""
     from ..cache import digest
 
-    return digest([sd[k] for k in GRAPH_KEYS[:-1]] + [sd.get("sets")])
+    return digest([sd[k] for k in GRAPH_KEYS[:-1]] + [sd.get("sets")]
+                  + ([sd["edge_before"], sd["edge_after"]] if "edge_before" in sd else []))
 
 
 def check_graph_file(sd: dict, path, kind: str, what: str) -> dict:
@@ -83,29 +98,44 @@ def check_graph_file(sd: dict, path, kind: str, what: str) -> dict:
         raise ValueError(f"{path}: edges must join nodes 0..{nodes - 1}")
     if not (sd["edge_action"].shape == (index.shape[0], 6) and sd["edge_count"].shape == (index.shape[0],)):
         raise ValueError(f"{path}: every edge needs one action (6,) and one count")
+    if "edge_before" in sd and not (sd["edge_before"].shape == sd["edge_after"].shape == (index.shape[0], c.shape[1])):
+        raise ValueError(f"{path}: every edge action needs its start and end states ({c.shape[1]} features each)")
     return sd
 
 
-def edge_tensors(edges: dict) -> dict:
+def edge_tensors(edges: dict, examples: dict | None = None) -> dict:
     """{(src, dst): Counter{action: count}} -> "edge_index" (E, 2), "edge_action" (E, 6),
-    "edge_count" (E,) tensors, one row per (edge, action), in sorted order (for saving)."""
+    "edge_count" (E,) tensors, one row per (edge, action), in sorted order (for saving);
+    with `examples` ({(src, dst): {action: (before, after)}}) also "edge_before",
+    "edge_after" (E, D), the states of each row's transition."""
     rows = [(s, d, a, n) for (s, d), c in sorted(edges.items()) for a, n in c.items()]
-    return {"edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
-            "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
-            "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64)}
+    out = {"edge_index": torch.tensor([[r[0], r[1]] for r in rows], dtype=torch.int64).reshape(-1, 2),
+           "edge_action": torch.tensor([r[2] for r in rows], dtype=torch.float32).reshape(-1, 6),
+           "edge_count": torch.tensor([r[3] for r in rows], dtype=torch.int64)}
+    if examples is not None:
+        for i, key in enumerate(("edge_before", "edge_after")):
+            states = [examples[(r[0], r[1])][r[2]][i] for r in rows]
+            out[key] = torch.stack(states).float() if states else torch.zeros(0, 0)
+    return out
 
 
 @dataclass
 class TransitionGraph:
     """Nodes (centroids) and action-labelled edges between them.
 
-    centroids (N, D); edges: {(src, dst): Counter{action tuple: count}}.
+    centroids (N, D); edges: {(src, dst): Counter{action tuple: count}}; examples (with
+    edge_action "nearest"): {(src, dst): {action tuple: (state before (D,), state after (D,))}}.
     """
 
     centroids: torch.Tensor
     bind_metric: str
     edges: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)   # how it was built, coverage, counts
+    examples: dict | None = None
+
+    @property
+    def edge_action(self) -> str:
+        return "most_common" if self.examples is None else "nearest"
 
     @property
     def num_nodes(self) -> int:
@@ -135,23 +165,43 @@ class TransitionGraph:
         labels, _ = assign(flat, self.centroids, self.bind_metric)
         return labels.reshape(states.shape[:-1])
 
-    def action(self, src: int, dst: int) -> np.ndarray | None:
-        """The most frequent action on edge src -> dst, or None when there is no such edge."""
+    def action(self, src: int, dst: int, before=None, after=None, rank: int = 0) -> np.ndarray | None:
+        """The action for edge src -> dst, or None when there is no such edge: the most
+        frequent one, or (edge_action "nearest", given the current state `before` and goal
+        state `after`) that of the rank-th nearest transition (see the module docstring)."""
         labels = self.edges.get((int(src), int(dst)))
         if not labels:
             return None
-        return np.asarray(labels.most_common(1)[0][0], np.float32)
+        if self.examples is None or before is None:
+            return np.asarray(labels.most_common(1)[0][0], np.float32)
+        actions = list(self.examples[(int(src), int(dst))].items())
+        starts = torch.stack([b for _, (b, _) in actions])
+        ends = torch.stack([a for _, (_, a) in actions])
+        cost = (pairwise_distances(starts, torch.as_tensor(before).reshape(1, -1), self.bind_metric)[:, 0]
+                + pairwise_distances(ends, torch.as_tensor(after).reshape(1, -1), self.bind_metric)[:, 0])
+        order = torch.argsort(cost, stable=True)
+        return np.asarray(actions[int(order[rank % len(actions)])][0], np.float32)
 
-    def add(self, src: torch.Tensor, dst: torch.Tensor, actions: np.ndarray) -> None:
-        for s, d, a in zip(src.tolist(), dst.tolist(), np.round(np.asarray(actions, np.float64), ACTION_DECIMALS)):
-            if s != d:   # a self-loop carries no usable transition
-                self.edges.setdefault((s, d), Counter())[tuple(float(v) for v in a)] += 1
+    def add(self, src: torch.Tensor, dst: torch.Tensor, actions: np.ndarray, before=None, after=None) -> None:
+        """Edges for transitions src -> dst with their actions; with before/after states (M, D)
+        the graph keeps examples ("nearest") and self-loops too."""
+        keep = before is not None
+        if keep and self.examples is None:
+            self.examples = {}
+        for m, (s, d, a) in enumerate(zip(src.tolist(), dst.tolist(),
+                                          np.round(np.asarray(actions, np.float64), ACTION_DECIMALS))):
+            if s == d and not keep:   # between cells a self-loop carries no usable transition
+                continue
+            a = tuple(float(v) for v in a)
+            self.edges.setdefault((s, d), Counter())[a] += 1
+            if keep:
+                self.examples.setdefault((s, d), {}).setdefault(a, (before[m].float(), after[m].float()))
 
     # -------------------------------------------------------------- save/load
     def state_dict(self) -> dict:
         """Only tensors, strings and numbers: loads with torch.load(weights_only=True)."""
         sd = {"kind": GRAPH_KIND, "format": 1, "centroids": self.centroids.float(), "bind_metric": self.bind_metric,
-              **edge_tensors(self.edges), "info": dict(self.info)}
+              **edge_tensors(self.edges, self.examples), "info": dict(self.info)}
         return {**sd, "content_digest": content_digest(sd)}
 
     def save(self, path: str | Path) -> Path:
@@ -163,8 +213,14 @@ class TransitionGraph:
         sd = check_graph_file(load_tensor_file(path, "transition graph", "build one with `python -m ncs_lite graph`"),
                               path, GRAPH_KIND, "transition graph")
         graph = cls(sd["centroids"], sd["bind_metric"], {}, sd["info"])
-        for (s, d), a, n in zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(), sd["edge_count"].tolist()):
-            graph.edges.setdefault((s, d), Counter())[tuple(round(v, ACTION_DECIMALS) for v in a)] += n
+        if "edge_before" in sd:
+            graph.examples = {}
+        for i, ((s, d), a, n) in enumerate(zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(),
+                                                sd["edge_count"].tolist())):
+            a = tuple(round(v, ACTION_DECIMALS) for v in a)
+            graph.edges.setdefault((s, d), Counter())[a] += n
+            if graph.examples is not None:
+                graph.examples.setdefault((s, d), {})[a] = (sd["edge_before"][i], sd["edge_after"][i])
         return graph
 
     # ------------------------------------------------------------------ draw
@@ -202,7 +258,7 @@ class TransitionGraph:
 
 def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.ndarray, *,
                 clusters: int, state: str = "mask", seed: int = 0, max_iter: int = 100,
-                true_entity: np.ndarray | None = None) -> TransitionGraph:
+                true_entity: np.ndarray | None = None, edge_action: str = "most_common") -> TransitionGraph:
     """isolate -> cluster -> bind over M transitions of K entity states (M, K, D).
 
     actions (M, 6). `true_entity` (M,) optional: for each transition, the entity index k
@@ -211,6 +267,8 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     """
     if state not in METRICS_BY_STATE:
         raise ValueError(f"state must be one of {sorted(METRICS_BY_STATE)}, got {state!r}")
+    if edge_action not in EDGE_ACTIONS:
+        raise ValueError(f"edge_action must be one of {EDGE_ACTIONS}, got {edge_action!r}")
     metrics = METRICS_BY_STATE[state]
     actions = np.asarray(actions, np.float32)
     if actions.shape != (states_t.shape[0], 6):
@@ -221,8 +279,10 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     result = kmeans(torch.cat([before, after]), clusters, metrics["cluster"], seed=seed,
                     max_iter=max_iter)
     graph = TransitionGraph(result.centroids, metrics["bind"])
-    graph.add(graph.bind(before), graph.bind(after), actions)
+    examples = (before, after) if edge_action == "nearest" else (None, None)
+    graph.add(graph.bind(before), graph.bind(after), actions, *examples)
     graph.info = {"transitions": int(len(moved)), "clusters": int(clusters), "state": state,
+                  "edge_action": edge_action,
                   "metrics": metrics, "seed": seed, "kmeans_inertia": result.inertia,
                   "kmeans_iterations": result.n_iter}
     if true_entity is not None:
@@ -231,7 +291,7 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
 
 
 def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
-                      state: str | None = None) -> TransitionGraph:
+                      state: str | None = None, edge_action: str = "most_common") -> TransitionGraph:
     """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it.
 
     `state` (the Table 3 column) defaults to the perception's own (`graph_state`, "mask" for
@@ -243,8 +303,8 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
         raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
     states_t, states_t1, actions, true_entity = perception.transitions(buffer)
     return build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
-                       true_entity=true_entity)
+                       true_entity=true_entity, edge_action=edge_action)
 
 
-__all__ = ["CLUSTERS_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
+__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
            "isolate", "isolate_distance"]

@@ -1,0 +1,196 @@
+"""Robogym-rearrange semantics: the object catalogue, overlap rules, pick and goal thresholds,
+orientation, determinism, bad input; and NCS's "nearest" edge actions on its continuous states."""
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+from ncs_lite.envs import make
+from ncs_lite.envs import robogym_rearrange as rr
+from ncs_lite.envs.objects import COLOURS, OBJECTS, RANDOM_CHOSEN, chunkiness, load_mesh
+from ncs_lite.ncs.graph import build_graph
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = make("robogym-rearrange", num_objects=4)
+    yield e
+    e.close()
+
+
+def footprints_clear(xy, radii):
+    d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+    need = radii[:, None] + radii[None]
+    off = ~np.eye(len(xy), dtype=bool)
+    return bool(np.all(d[off] >= need[off] - 1e-6))
+
+
+def test_catalogue_is_94_objects_and_13_colours_and_the_random_ones_follow_the_rule():
+    assert len(OBJECTS) == 94 and len({o[0] for o in OBJECTS}) == 94
+    assert len(COLOURS) == 13 and len({tuple(c) for c in COLOURS}) == 13
+    scores = []
+    for i in range(1000):
+        try:
+            scores.append(chunkiness(load_mesh(f"random_urdfs/{i:03d}/{i:03d}.obj", (1, 1, 1), 0)[0]))
+        except ValueError:                      # one file has NaN vertices
+            scores.append(-1.0)
+    chosen = np.argsort(-np.asarray(scores), kind="stable")[:69]
+    assert sorted(chosen.tolist()) == list(RANDOM_CHOSEN)
+
+
+def test_every_object_is_scaled_to_the_same_longest_dimension():
+    for j, entry in enumerate(OBJECTS):
+        g = rr.object_geometry(entry, 0.12, f"s{j}")
+        assert 0 < g["rest"] <= 0.06 + 1e-9 and 0 < g["radius"] <= 0.12 * np.sqrt(0.5) + 1e-9, entry[0]
+
+
+def test_check_env():
+    e = gym.make("ncs_lite/RobogymRearrange-v0", num_objects=2)
+    check_env(e.unwrapped)
+    e.close()
+
+
+def test_observation_info_and_overlap_rules(env):
+    for seed in range(5):
+        obs, info = env.reset(seed=seed)
+        assert obs["image"].shape == (64, 64, 3) and obs["goal"].dtype == np.uint8
+        masks = info["masks"]
+        assert masks.shape == (4, 64, 64) and (masks.sum((1, 2)) >= 15).all()   # every object visible
+        assert not (masks.sum(0) > 1).any()
+        radii = env._radius[info["shapes"]]
+        start, goal = info["positions"][:, :2], info["goal_positions"][:, :2]
+        # starts never overlap; goals avoid each other and every start
+        assert footprints_clear(np.concatenate([start, goal]), np.concatenate([radii, radii]))
+        assert not info["satisfied"].any() and info["min_steps"] == 4 and info["horizon"] == 16
+        assert len({tuple(c) for c in info["colors"]}) == 4 and len(set(info["shapes"].tolist())) == 4
+        assert info["types"].shape == (4, 3 + 94)
+
+
+def test_seven_objects_always_fit():
+    e = make("robogym-rearrange", num_objects=7)
+    for seed in range(10):
+        _, info = e.reset(seed=seed)
+        assert (info["masks"].sum((1, 2)) > 0).all()
+    e.close()
+
+
+def test_pick_threshold_move_and_orientation(env):
+    _, info = env.reset(seed=1)
+    quat = env.data.qpos.reshape(-1, 7)[:, 3:].copy()
+    pos = info["positions"]
+    spot = env._free_spot(env._radius[info["shapes"][0]], pos[1:, :2], env._radius[info["shapes"][1:]],
+                          np.random.default_rng(0))
+    miss = env.pick_and_move(0, spot)
+    miss[0] += 0.06 * (1 if pos[0, 0] < 0 else -1)        # w 6 cm from the object: beyond 0.05
+    miss[3] -= miss[0] - pos[0, 0]
+    _, _, _, _, info = env.step(miss)
+    assert info["moved"] == -1 and np.allclose(info["positions"], pos, atol=1e-3)
+    hit = env.pick_and_move(0, spot)
+    hit[:2] += 0.03                                       # 4.2 cm off: within the threshold
+    hit[3:5] -= 0.03
+    _, _, _, _, info = env.step(hit)
+    assert info["moved"] == 0
+    assert np.linalg.norm(info["positions"][0, :2] - spot) < 0.01    # settled where it was put
+    assert np.allclose(np.abs(env.data.qpos.reshape(-1, 7)[0, 3:]), np.abs(quat[0]), atol=0.02)
+
+
+def test_overlapping_or_off_table_place_is_a_noop(env):
+    _, info = env.reset(seed=2)
+    pos = info["positions"]
+    for target in (pos[1, :2], np.array([0.29, 0.0])):
+        _, _, _, _, after = env.step(env.pick_and_move(0, target))
+        assert after["moved"] == -1 and np.allclose(after["positions"], pos, atol=1e-3)
+
+
+def test_goal_within_threshold_satisfies_and_success_terminates():
+    e = make("robogym-rearrange", num_objects=2)
+    _, info = e.reset(seed=4)
+    for k in range(2):
+        target = info["goal_positions"][k, :2] + np.array([0.03, 0.0])
+        if not e.fits(k, target):
+            target = info["goal_positions"][k, :2]
+        _, reward, term, _, info = e.step(e.pick_and_move(k, target))
+        assert info["moved"] == k and info["satisfied"][k]
+    assert term and reward == 1.0 and info["is_success"]
+    e.close()
+
+
+def test_determinism_for_a_seed():
+    runs = []
+    for _ in range(2):
+        e = make("robogym-rearrange", num_objects=3)
+        obs, info = e.reset(seed=7)
+        rng = np.random.default_rng(0)
+        for _ in range(3):
+            obs, *_, info = e.step(e.random_pick_and_move(rng))
+        runs.append((obs["image"], obs["goal"], info["positions"]))
+        e.close()
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("action, match", [
+    (np.zeros(5), "shape"), (np.full(6, np.nan), "finite"), (np.array([1.0, 0, 0, 0, 0, 0]), "outside"),
+    (np.array(["a"] * 6), "real dtype")])
+def test_bad_actions_raise(env, action, match):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        env.step(action)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"num_objects": 14}, "num_objects"), ({"object_size": 0.5}, "object_size"),
+    ({"settle_steps": -1}, "settle_steps"), ({"horizon_multiplier": float("inf")}, "horizon_multiplier"),
+    ({"camera_tilt": 80}, "camera_tilt")])
+def test_bad_config_raises(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        make("robogym-rearrange", **kwargs)
+
+
+def test_step_before_reset_and_after_close():
+    e = make("robogym-rearrange", num_objects=1)
+    with pytest.raises(ValueError, match="before reset"):
+        e.step(np.zeros(6, np.float32))
+    e.reset(seed=0)
+    e.close()
+    with pytest.raises(ValueError, match="closed"):
+        e.step(np.zeros(6, np.float32))
+
+
+def test_a_render_failure_names_mujoco_gl_and_the_libraries(monkeypatch):
+    def broken(*a, **k):
+        raise RuntimeError("no display")
+    monkeypatch.setattr(rr.mujoco, "Renderer", broken)
+    with pytest.raises(RuntimeError, match="MUJOCO_GL.*EGL.*OSMesa"):
+        make("robogym-rearrange", num_objects=1)
+
+
+def test_nearest_edge_action_takes_the_closest_transition_and_the_next_on_retry():
+    # two transitions on one edge between the same two clusters: from (0, 0) to (1, 0) and
+    # from (0.1, 0) to (0.9, 0); the state nearest the second gets its action first
+    before = torch.tensor([[[0.0, 0.0]], [[0.1, 0.0]], [[5.0, 5.0]], [[5.1, 5.0]]])
+    after = torch.tensor([[[1.0, 0.0]], [[0.9, 0.0]], [[5.0, 6.0]], [[5.1, 6.0]]])
+    actions = np.arange(24, dtype=np.float32).reshape(4, 6)
+    g = build_graph(before, after, actions, clusters=4, state="slot", edge_action="nearest")
+    src, dst = g.bind(torch.tensor([[0.1, 0.0], [0.9, 0.0]])).tolist()
+    assert g.bind(torch.tensor([[0.0, 0.0], [1.0, 0.0]])).tolist() == [src, dst]   # one edge
+    near = g.action(src, dst, torch.tensor([0.12, 0.0]), torch.tensor([0.88, 0.0]))
+    second = g.action(src, dst, torch.tensor([0.12, 0.0]), torch.tensor([0.88, 0.0]), rank=1)
+    assert np.array_equal(near, actions[1]) and np.array_equal(second, actions[0])
+    assert np.array_equal(g.action(src, dst), actions[0])      # without states: the most common
+    assert g.edge_action == "nearest" and g.info["edge_action"] == "nearest"
+
+
+def test_nearest_graph_round_trips(tmp_path):
+    before = torch.rand(50, 3, 3)
+    after = before.clone()
+    after[:, 0] += 0.5              # entity 0 moves; small moves make self-loops, which are kept
+    g = build_graph(before, after, np.random.rand(50, 6).astype(np.float32), clusters=5, state="slot",
+                    edge_action="nearest")
+    g.save(tmp_path / "g.pt")
+    h = type(g).load(tmp_path / "g.pt")
+    assert h.edge_action == "nearest" and h.edges == g.edges
+    key = next(iter(g.edges))
+    b, a = torch.rand(3), torch.rand(3)
+    assert np.array_equal(g.action(*key, b, a), h.action(*key, b, a))
