@@ -72,7 +72,9 @@ def _evaluate(args):
     needs = NEEDS.get(args.method, ())
     asked = args.state or next((parse_override(o)[1] for o in sections["ncs"]
                                 if parse_override(o)[0] == "ncs.state"), None)
-    state = asked or "mask"      # the shipped graph to default to
+    from .ncs.graph import STATE_BY_ENV
+
+    state = asked or STATE_BY_ENV.get(args.env, "mask")      # the shipped graph to default to
     # without a path, a method runs from the shipped `reduced` assets of --env
     paths = {"graph": args.graph, "model": args.checkpoint, "policy": args.policy}
     for need in needs:

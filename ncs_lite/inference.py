@@ -37,7 +37,17 @@ SHIPPED_POLICIES = {"bc": ASSETS / "bc_block_rearrange_reduced.pt", "iql": ASSET
 _SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT_GRAPH,
                    ("ncs-oracle", "mask"): SHIPPED_ORACLE_GRAPH, ("ncs-oracle", "slot"): SHIPPED_POSITION_GRAPH,
                    ("nf", "mask"): SHIPPED_NF_GRAPH, ("nf-oracle", "mask"): SHIPPED_NF_ORACLE_GRAPH}
-SHIPPED_ENVS = ("block-rearrange",)
+# robogym-rearrange (issue 14): its `reduced` checkpoint, its graph on slot states (Table 3's
+# second column, 45 nodes) and the position oracle's graph; the README lists the commands
+ROBOGYM_CHECKPOINT = ASSETS / "dslate_robogym_rearrange_reduced.pt"
+ROBOGYM_SLOT_GRAPH = ASSETS / "graph_robogym_rearrange_reduced_slot.pt"
+ROBOGYM_POSITION_GRAPH = ASSETS / "graph_robogym_rearrange_oracle_position.pt"
+_SHIPPED = {
+    "block-rearrange": {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES, "graph": _SHIPPED_GRAPHS},
+    "robogym-rearrange": {"model": ROBOGYM_CHECKPOINT, "policy": {},
+                          "graph": {("ncs", "slot"): ROBOGYM_SLOT_GRAPH, ("ncs-oracle", "slot"): ROBOGYM_POSITION_GRAPH}},
+}
+SHIPPED_ENVS = tuple(_SHIPPED)
 # 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
 
@@ -134,9 +144,10 @@ def shipped_asset(env: str, method: str, need: str, state: str = "mask") -> Path
     if flag is None:
         raise ValueError(f"need must be 'model', 'graph' or 'policy', got {need!r}")
     path = None
-    if env in SHIPPED_ENVS:
-        path = {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES.get(method),
-                "graph": _SHIPPED_GRAPHS.get((method, state))}[need]
+    if env in _SHIPPED:
+        shipped = _SHIPPED[env]
+        path = {"model": shipped["model"], "policy": shipped["policy"].get(method),
+                "graph": shipped["graph"].get((method, state))}[need]
     if path is None:
         raise ValueError(f"the kit ships no {need} for {method!r} on {env!r} with {state!r} states; pass {flag}")
     if not path.exists():
