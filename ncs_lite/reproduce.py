@@ -38,14 +38,14 @@ def mean_sd(values) -> dict:
 
 
 def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
-                        seed: int = 0) -> dict:
+                        seed: int = 0, env: str = "block-rearrange") -> dict:
     """Held-out fg-ARI and the share of cubes absorbed into the floor's slot, as notebook 03
     measures them: `images` frames of the held-out buffer (seed + 1000), 7 iterations, one
     slot per object plus one (at least the model's K), `restarts` starts per image."""
     from .data import cached_buffer, load_buffer
     from .metrics import absorbed_by_background, foreground_ari
 
-    data = load_buffer(cached_buffer(max(images // 5, 2), num_objects=num_objects,
+    data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
                                      seed=seed + HELDOUT_SEED))
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
     masks = data["masks"].reshape(-1, *data["masks"].shape[2:])[:images]
@@ -283,7 +283,57 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     return {"rows": table, "minutes": meta["minutes"]}
 
 
-TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table}
+# ---------------------------------------------------------------------- robogym-rearrange
+def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
+                  checkpoint=None, graph=None, oracle_graph=None, out_dir=None,
+                  allow_dirty: bool = False) -> dict:
+    """Issue 14's numbers from robogym-rearrange's shipped `reduced` assets (or the given
+    files): the type/state split's metrics on 100 held-out episodes, fg-ARI at 4 objects with
+    one start and with NCS's restarts, and success of `ncs` (slot states, the shipped graph),
+    `ncs-oracle` (positions) and `random` on `episodes` seeded tasks per count (complete
+    goals, horizon 4x). Each evaluation is cached by its inputs (`evaluate_method`)."""
+    from .config import NCSConfig, to_dict
+    from .data import cached_buffer, load_buffer
+    from .evaluation import TaskSet, evaluate_method, summarize
+    from .inference import ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, load_dslate
+    from .metrics import factorization_scores
+    from .ncs.graph import TransitionGraph
+
+    env = "robogym-rearrange"
+    paths = {"checkpoint": Path(checkpoint or ROBOGYM_CHECKPOINT), "graph": Path(graph or ROBOGYM_SLOT_GRAPH),
+             "oracle_graph": Path(oracle_graph or ROBOGYM_POSITION_GRAPH)}
+    provenance(_table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
+    model = load_dslate(paths["checkpoint"])
+    learned, oracle = TransitionGraph.load(paths["graph"]), TransitionGraph.load(paths["oracle_graph"])
+    ncs = NCSConfig(clusters=learned.num_nodes, state="slot", edge_action=learned.edge_action)
+    split = factorization_scores(model, load_buffer(cached_buffer(100, env=env, num_objects=4, seed=HELDOUT_SEED)))
+    row = {"train_minutes": round(float(model.checkpoint_info["seconds"]) / 60, 1),
+           **{f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS}}
+    for restarts in (1, ncs.restarts):
+        seg = segmentation_scores(model, 4, images, restarts, env=env)
+        row[f"fg_ari_4_r{restarts}"] = round(seg["fg_ari"], 4)
+        row[f"absorbed_4_r{restarts}"] = round(seg["absorbed"], 4)
+    row.update(graph_edges=learned.num_edges, coverage=round(learned.info.get("coverage", float("nan")), 4),
+               oracle_graph_edges=oracle.num_edges)
+    for k in objects:
+        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
+        for method, kwargs in (("ncs", {"graph": learned, "model": model}), ("ncs-oracle", {"graph": oracle}),
+                               ("random", {})):
+            s = summarize(evaluate_method(method, tasks, ncs=ncs, **kwargs))[0]
+            key = method.replace("-", "_")
+            row[f"{key}_{k}"] = s["success"]
+            row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+            row[f"{key}_random_fraction_{k}"] = round(s["random_fraction"], 3)
+        print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
+    meta = {"env": env, "episodes": episodes, "objects": list(objects), "images": images, "ncs": to_dict(ncs),
+            **{name: relative_to_repo(p) for name, p in paths.items()},
+            **{f"{name}_sha256": sha256_file(p) for name, p in paths.items()}}
+    write_table("robogym_reduced", [row], meta, out_dir, allow_dirty)
+    return {"rows": [row]}
+
+
+TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table,
+          "robogym": robogym_table}
 
 
 def run_table(name: str, args) -> dict:
@@ -296,20 +346,23 @@ def run_table(name: str, args) -> dict:
     if name == "baselines":
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
                                allow_dirty=args.allow_dirty)
+    if name == "robogym":
+        return robogym_table(args.episodes or 100, checkpoint=args.checkpoint, out_dir=args.out_dir,
+                             allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
 
 
 def add_subcommand(subparsers) -> None:
     from .training import add_run_arguments
 
-    p = subparsers.add_parser("reproduce", help="regenerate a README table (seeds, clusters, baselines)",
+    p = subparsers.add_parser("reproduce", help="regenerate a README table (seeds, clusters, baselines, robogym)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("table", choices=sorted(TABLES))
     p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines: the assets")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
-    p.add_argument("--checkpoint", help="clusters: checkpoint (default: the shipped one)")
+    p.add_argument("--checkpoint", help="clusters, robogym: checkpoint (default: the shipped one)")
     p.add_argument("--episodes", type=int, default=None,
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
     p.add_argument("--mpc-episodes", type=int, default=None,
