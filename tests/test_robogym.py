@@ -194,3 +194,42 @@ def test_nearest_graph_round_trips(tmp_path):
     key = next(iter(g.edges))
     b, a = torch.rand(3), torch.rand(3)
     assert np.array_equal(g.action(*key, b, a), h.action(*key, b, a))
+
+
+def test_agent_on_a_nearest_graph_retries_with_the_next_transition_and_ignores_same_node():
+    from gymnasium import spaces
+
+    from ncs_lite.ncs.perception import Entities
+    from ncs_lite.ncs.policy import NCSAgent
+
+    # one entity, states (x, 1) (cosine select-constraint needs a constant nonzero axis, like the
+    # oracle's z); three transitions from x near 0 to x near 1
+    before = torch.tensor([[[0.0, 1.0]], [[0.05, 1.0]], [[0.1, 1.0]]])
+    after = torch.tensor([[[1.0, 1.0]], [[0.95, 1.0]], [[0.9, 1.0]]])
+    actions = np.eye(6, dtype=np.float32)[:3]
+    graph = build_graph(before, after, actions, clusters=2, state="slot", edge_action="nearest")
+
+    class Fixed:
+        graph_state = "slot"
+
+        def __init__(self, state):
+            self.state = state
+
+        def current(self, obs, info):
+            return Entities(torch.zeros(1, 2), torch.tensor([self.state]))
+
+        def goal(self, obs, info):
+            return Entities(torch.zeros(1, 2), torch.tensor([[0.92, 1.0]]))
+
+    agent = NCSAgent(graph, Fixed([0.09, 1.0]), spaces.Box(-1, 1, (6,)), seed=0)
+    agent.reset(None, None)
+    first, random1 = agent.act(None, None)
+    second, random2 = agent.act(None, None)          # the same pair and edge again: next nearest
+    assert not random1 and not random2
+    assert np.array_equal(first, actions[2]) and np.array_equal(second, actions[1])
+    assert agent.last["rank"] == 1
+    # an entity in its goal's node still acts (a node is wider than the goal threshold)
+    near = NCSAgent(graph, Fixed([0.93, 1.0]), spaces.Box(-1, 1, (6,)), seed=0)
+    near.reset(None, None)
+    near.act(None, None)
+    assert not near.last["same_node"].any()
