@@ -16,11 +16,10 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .common import check_action, check_integer, check_number, check_task, constrained_count, horizon
+from .common import RearrangeEnv, check_integer, check_number, check_task, constrained_count, horizon
 
 
 def _import_pybullet_quietly():
@@ -103,7 +102,7 @@ class BlockRearrangeConfig:
         return self.grid_size * self.cell / 2
 
 
-class BlockRearrange(gym.Env):
+class BlockRearrange(RearrangeEnv):
     """Goal-conditioned block rearrangement with image observations (see module docstring).
 
     Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
@@ -113,8 +112,6 @@ class BlockRearrange(gym.Env):
       masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
       -1 for a no-op), min_steps, horizon, is_success.
     """
-
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
                  horizon_multiplier: float = 4.0, action_noise: float = 0.0,
@@ -215,39 +212,18 @@ class BlockRearrange(gym.Env):
         self._place(self._cell_of)
         return self._observe(moved=-1)
 
-    def step(self, action):
-        action = self._validate_action(action)
-        cfg = self.config
-        if cfg.action_noise > 0:
-            action = action + self.np_random.normal(0.0, cfg.action_noise, 6).astype(np.float32)
-        moved = self._apply(action)
-        if moved >= 0:
-            self._place(self._cell_of)
-        self._steps += 1
-        obs, info = self._observe(moved)
-        terminated = bool(info["is_success"])
-        truncated = (not terminated) and self._steps >= self.horizon
-        return obs, float(terminated), terminated, truncated, info
+    def _closed(self) -> bool:
+        return getattr(self, "_client", None) is None
 
-    def render(self):
-        return self._image.copy() if self.render_mode == "rgb_array" else None
+    def _after_move(self) -> None:
+        self._place(self._cell_of)
 
     def close(self):
         if getattr(self, "_client", None) is not None:
             pb.disconnect(physicsClientId=self._client)
             self._client = None
 
-    def __del__(self):          # an env dropped without close() must not keep its PyBullet client
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - the interpreter may be shutting down
-            pass
-
     # --------------------------------------------------------------- helpers
-    def _validate_action(self, action) -> np.ndarray:
-        return check_action(action, self.action_space, closed=getattr(self, "_client", None) is None,
-                            reset=self._image is not None)
-
     def _apply(self, action: np.ndarray) -> int:
         """Pick and move; return the index of the moved cube, or -1 for a no-op."""
         cfg = self.config

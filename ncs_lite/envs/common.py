@@ -6,6 +6,7 @@ the same message from either env.
 """
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
 
@@ -74,3 +75,33 @@ def check_action(action, action_space, *, closed: bool, reset: bool) -> np.ndarr
 def horizon(cfg, min_steps: int) -> int:
     """ceil(horizon_multiplier x minimum steps), at least 1."""
     return max(1, int(np.ceil(cfg.horizon_multiplier * min_steps)))
+
+
+class RearrangeEnv(gym.Env):
+    """The step loop both rearrangement envs share. A subclass sets `config`, `action_space`,
+    `horizon`, `_steps`, `_image` (None before the first reset) and provides `_closed()`,
+    `_apply(action) -> moved object or -1`, `_after_move()` and `_observe(moved)`."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def step(self, action):
+        action = check_action(action, self.action_space, closed=self._closed(), reset=self._image is not None)
+        if self.config.action_noise > 0:
+            action = action + self.np_random.normal(0.0, self.config.action_noise, 6).astype(np.float32)
+        moved = self._apply(action)
+        if moved >= 0:
+            self._after_move()
+        self._steps += 1
+        obs, info = self._observe(moved)
+        terminated = bool(info["is_success"])
+        truncated = (not terminated) and self._steps >= self.horizon
+        return obs, float(terminated), terminated, truncated, info
+
+    def render(self):
+        return self._image.copy() if self.render_mode == "rgb_array" else None
+
+    def __del__(self):          # an env dropped without close() must free what it holds
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - the interpreter may be shutting down
+            pass

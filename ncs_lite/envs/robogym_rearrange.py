@@ -30,11 +30,10 @@ import os
 import sys
 from dataclasses import asdict, dataclass
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .common import check_action, check_integer, check_number, check_task, constrained_count, horizon
+from .common import RearrangeEnv, check_integer, check_number, check_task, constrained_count, horizon
 from .objects import COLOURS, OBJECTS, load_mesh
 
 GL_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
@@ -142,7 +141,7 @@ def _yaw_quat(yaw: float) -> np.ndarray:
     return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
-class RobogymRearrange(gym.Env):
+class RobogymRearrange(RearrangeEnv):
     """Goal-conditioned rearrangement of varied objects with image observations.
 
     Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
@@ -152,8 +151,6 @@ class RobogymRearrange(gym.Env):
     is_success) plus shapes (k,) indices into `objects.OBJECTS` and types (k, 3 + 94): the
     colour and a one-hot shape, what an object is.
     """
-
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
                  horizon_multiplier: float = 4.0, action_noise: float = 0.0,
@@ -303,34 +300,16 @@ class RobogymRearrange(gym.Env):
         self._settle()
         return self._observe(moved=-1)
 
-    def step(self, action):
-        action = check_action(action, self.action_space, closed=self._renderer is None,
-                              reset=self._image is not None)
-        cfg = self.config
-        if cfg.action_noise > 0:
-            action = action + self.np_random.normal(0.0, cfg.action_noise, 6).astype(np.float32)
-        moved = self._apply(action)
-        if moved >= 0:
-            self._settle()
-        self._steps += 1
-        obs, info = self._observe(moved)
-        terminated = bool(info["is_success"])
-        truncated = (not terminated) and self._steps >= self.horizon
-        return obs, float(terminated), terminated, truncated, info
+    def _closed(self) -> bool:
+        return getattr(self, "_renderer", None) is None
 
-    def render(self):
-        return self._image.copy() if self.render_mode == "rgb_array" else None
+    def _after_move(self) -> None:
+        self._settle()
 
     def close(self):
         if getattr(self, "_renderer", None) is not None:
             self._renderer.close()
             self._renderer = None
-
-    def __del__(self):          # an env dropped without close() must free its GL context
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - the interpreter may be shutting down
-            pass
 
     # --------------------------------------------------------------- helpers
     def _sample_spots(self, radii: np.ndarray, rng) -> np.ndarray:
