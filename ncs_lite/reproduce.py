@@ -347,8 +347,8 @@ def run_table(name: str, args) -> dict:
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
                                allow_dirty=args.allow_dirty)
     if name == "robogym":
-        return robogym_table(args.episodes or 100, checkpoint=args.checkpoint, out_dir=args.out_dir,
-                             allow_dirty=args.allow_dirty)
+        return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
+                             checkpoint=args.checkpoint, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
 
 
@@ -367,6 +367,8 @@ def add_subcommand(subparsers) -> None:
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
     p.add_argument("--mpc-episodes", type=int, default=None,
                    help="baselines: MPC's tasks per object count (default: the preset's, reduced 10)")
+    p.add_argument("--objects", type=int, nargs="+", default=None,
+                   help="robogym: object counts to evaluate (default: 4 5 6 7)")
     p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
     add_run_arguments(p)
     p.set_defaults(func=lambda args: print(json.dumps(run_table(args.table, args), indent=2,
