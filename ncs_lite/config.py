@@ -236,9 +236,10 @@ class NCSConfig:
         states = ("mask", "slot")   # = sorted(ncs.graph.METRICS_BY_STATE), checked by a test
         if self.state not in states:
             raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
-        edge_actions = ("most_common", "nearest")   # = ncs.graph.EDGE_ACTIONS, checked by a test
-        if self.edge_action not in edge_actions:
-            raise ValueError(f"ncs.edge_action must be one of {', '.join(map(repr, edge_actions))}, "
+        from .ncs.graph import EDGE_ACTIONS
+
+        if self.edge_action not in EDGE_ACTIONS:
+            raise ValueError(f"ncs.edge_action must be one of {', '.join(map(repr, EDGE_ACTIONS))}, "
                              f"got {self.edge_action!r}")
         return self
 

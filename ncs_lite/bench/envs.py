@@ -29,44 +29,35 @@ def _rate(fn, seconds: float = 2.0) -> float:
     return n / elapsed
 
 
-def run(seconds: float = 2.0) -> dict:
-    # PyBullet's TinyRenderer is single-threaded: this is a one-core figure.
-    results = {}
-    env = make("block-rearrange", num_objects=4, horizon_multiplier=1e6)
+def _measure(env, bare_render, targets: dict, seconds: float) -> dict:
+    """Random pick-and-move steps per second against `bare_render` calls per second."""
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     step_rate = _rate(lambda: env.step(env.random_pick_and_move(rng)), seconds)
-    s = env.config.image_size
-
-    def bare_render():
-        pb.getCameraImage(s, s, env._view, env._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
-                          physicsClientId=env._client)
-
     render_rate = _rate(bare_render, seconds)
     env.close()
-    results["block-rearrange"] = {
-        "transitions_per_s": round(step_rate, 1),
-        "bare_render_per_s": round(render_rate, 1),
-        "ratio_to_render": round(step_rate / render_rate, 3),
-        "targets": {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 300"},
-    }
+    return {"transitions_per_s": round(step_rate, 1), "bare_render_per_s": round(render_rate, 1),
+            "ratio_to_render": round(step_rate / render_rate, 3), "targets": targets}
 
-    env = make("robogym-rearrange", num_objects=4, horizon_multiplier=1e6)
-    env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    step_rate = _rate(lambda: env.step(env.random_pick_and_move(rng)), seconds)
-    renderer, option = env._renderer, env._scene_option
+
+def run(seconds: float = 2.0) -> dict:
+    # PyBullet's TinyRenderer is single-threaded: this is a one-core figure.
+    block = make("block-rearrange", num_objects=4, horizon_multiplier=1e6)
+    s = block.config.image_size
+
+    def bare_pybullet_render():
+        pb.getCameraImage(s, s, block._view, block._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
+                          physicsClientId=block._client)
+
+    robogym = make("robogym-rearrange", num_objects=4, horizon_multiplier=1e6)
 
     def bare_mujoco_render():
-        renderer.update_scene(env.data, "top", scene_option=option)
-        renderer.render()
+        robogym._renderer.update_scene(robogym.data, "top", scene_option=robogym._scene_option)
+        robogym._renderer.render()
 
-    render_rate = _rate(bare_mujoco_render, seconds)
-    env.close()
-    results["robogym-rearrange"] = {
-        "transitions_per_s": round(step_rate, 1),
-        "bare_render_per_s": round(render_rate, 1),
-        "ratio_to_render": round(step_rate / render_rate, 3),
-        "targets": {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"},
+    return {
+        "block-rearrange": _measure(block, bare_pybullet_render,
+                                    {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 300"}, seconds),
+        "robogym-rearrange": _measure(robogym, bare_mujoco_render,
+                                      {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"}, seconds),
     }
-    return results

@@ -60,6 +60,7 @@ import mujoco  # noqa: E402 - after MUJOCO_GL is chosen
 # is what the recipe separates objects from.
 TABLE_RGB = (0.55, 0.50, 0.45)
 FLOOR_RGB = TABLE_RGB
+ONE_HOT_SHAPES = np.eye(len(OBJECTS), dtype=np.float32)   # the shape half of info["types"]
 HIDDEN_GROUP = 5          # geoms of unused shapes, and of unconstrained objects in the goal image
 
 
@@ -106,7 +107,7 @@ def object_geometry(entry, size: float, asset_name: str = "mesh") -> dict:
     (a circle around the centre that holds it at any yaw)."""
     name, kind, spec = entry
     if kind == "mesh":
-        v, f = load_mesh(*spec[:1], tuple(spec[1]), spec[2])
+        v, f = load_mesh(spec[0], tuple(spec[1]), spec[2])
         lo, hi = v.min(0), v.max(0)
         v = (v - (lo + hi) / 2) * (size / float((hi - lo).max()))     # centred, longest side = size
         asset = f'<mesh name="{asset_name}" inertia="convex" vertex="{_fmt(v)}" face="{" ".join(map(str, f.ravel()))}"/>'
@@ -371,7 +372,7 @@ class RobogymRearrange(RearrangeEnv):
         pos = self.positions()
         goal = np.concatenate([self._goal, self._rest[self._shapes][:, None]], 1).astype(np.float32)
         satisfied = np.linalg.norm(pos[:, :2] - goal[:, :2], axis=1) <= cfg.success_threshold
-        types = np.concatenate([self._colors, np.eye(len(OBJECTS), dtype=np.float32)[self._shapes]], 1)
+        types = np.concatenate([self._colors, ONE_HOT_SHAPES[self._shapes]], 1)
         info = {
             "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
             "shapes": self._shapes.copy(), "types": types,
@@ -395,9 +396,9 @@ class RobogymRearrange(RearrangeEnv):
         (uniform over such places; back where it is if there is none)."""
         obj = int(rng.integers(self.config.num_objects))
         others = np.arange(self.config.num_objects) != obj
-        xy = self._free_spot(self._radius[self._shapes[obj]], self.positions()[others, :2],
-                             self._radius[self._shapes[others]], rng)
-        return self.pick_and_move(obj, self.positions()[obj, :2] if xy is None else xy)
+        pos = self.positions()[:, :2]
+        xy = self._free_spot(self._radius[self._shapes[obj]], pos[others], self._radius[self._shapes[others]], rng)
+        return self.pick_and_move(obj, pos[obj] if xy is None else xy)
 
     def describe(self) -> dict:
         return {"env": "robogym-rearrange", **asdict(self.config)}
