@@ -293,7 +293,8 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
                            1 / colours)
       position_r2_from_s / _from_z   ridge R^2 of the object's (x, y) from s / from z
       moved_slot_accuracy  how often the dynamics' largest predicted state change (L2) is on
-                           the slot of the object the action moved (chance: 1 / slots)
+                           the slot of the object the action moved (chance: 1 / slots; over
+                           the transitions that moved an object)
       predicted_position_r2   R^2 of the moved object's next (x, y) read by the s-probe from
                            the *predicted* s; `no_change_position_r2` reads it from the
                            current s (the trivial baseline: predict no change)
@@ -347,7 +348,7 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     moved = np.asarray(buffer["moved"]).reshape(-1)                    # (M,) object index
     ep = np.repeat(np.arange(E), T - 1)
     tt = np.tile(np.arange(T - 1), E)
-    moved_slot = owner[ep, tt, moved]
+    moved_slot = np.where(moved >= 0, owner[ep, tt, np.maximum(moved, 0)], -1)   # -1: a no-op
     ok = moved_slot >= 0
     hits = change.argmax(1)[ok] == moved_slot[ok]
     read_pos = _ridge_fit(feats_s[train], target[train])

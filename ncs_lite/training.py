@@ -11,7 +11,8 @@ What the loop guarantees:
 * Schedules are functions of the step: gumbel tau (cosine, `tau_schedule`), the lr of
   slot attention / decoder / dynamics (linear warm-up, then constant or cosine), and the
   dVAE's constant lr (no warm-up), as in Table 2. Optional polish steps follow the schedule
-  (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight).
+  (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight), then
+  optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss).
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -103,8 +104,10 @@ def autocast(device: torch.device, precision: str):
 def lr_at(step: int, cfg: DSlateConfig) -> float:
     """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
     then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
-    ('cosine'); then `polish_lr` for the polish steps."""
+    ('cosine'); then `polish_lr` for the polish steps and `dynamics_lr` for the dynamics phase."""
     t = cfg.train
+    if t.dynamics_steps and step >= t.polish_end():
+        return t.dynamics_lr
     if step >= t.main_steps():
         return t.polish_lr
     step = step - t.dvae_warmup_steps          # this schedule starts after the dVAE warm-up
@@ -256,7 +259,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
     Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
-    then `polish_steps`) or, if given, until global step `max_steps` (schedules still follow
+    then `polish_steps`, then `dynamics_steps`) or, if given, until global step `max_steps` (schedules still follow
     the full run, so a run stopped with `max_steps` and resumed matches an uninterrupted one).
     Returns `out_path`.
     `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
@@ -354,8 +357,11 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 g["lr"] = (0.0 if polishing else cfg.dvae.lr) if g.get("name") == "dvae" else lr
 
             with autocast(device, precision):
-                out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps,
-                              foreground_weight=cfg.train.polish_foreground_weight if polishing else None)
+                if step >= cfg.train.polish_end():       # the dynamics phase: nothing else moves
+                    out = model.dynamics_loss(frames, actions)
+                else:
+                    out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps,
+                                  foreground_weight=cfg.train.polish_foreground_weight if polishing else None)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 _non_finite("loss", loss, step, out_path, last_saved)

@@ -67,7 +67,7 @@ def test_resume_equals_uninterrupted_run(buffer, tmp_path):
 def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tmp_path, monkeypatch):
     cfg = ci()                                                # 4 scheduled steps, then 2 polish steps
     main = cfg.train.main_steps()
-    assert cfg.train.total_steps() == main + cfg.train.polish_steps == main + 2
+    assert cfg.train.polish_end() == main + cfg.train.polish_steps == main + 2
     before = train(cfg, buffer, tmp_path / "m.pt", max_steps=main)
     before = {k: v.clone() for k, v in torch.load(before, weights_only=True)["model"].items()}
     weights, forward = [], DSlate.forward
@@ -77,13 +77,31 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
         return forward(self, *args, **kwargs)
 
     monkeypatch.setattr(DSlate, "forward", spy)
-    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=main + 2),
+                       weights_only=True)
     assert after["step"] == main + 2
     assert weights == [cfg.train.polish_foreground_weight] * 2
     assert all(torch.equal(before[k], after["model"][k]) for k in before if k.startswith("dvae."))
     assert not torch.equal(before["slot_attn.mu"], after["model"]["slot_attn.mu"])
     with pytest.raises(ValueError, match="polish_steps must be >= 0"):
         ci(polish_steps=-1).validate()
+
+
+def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):
+    cfg = ci()                                                # ... then 2 dynamics steps
+    end = cfg.train.polish_end()
+    assert cfg.train.total_steps() == end + cfg.train.dynamics_steps == end + 2
+    before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
+    before = {k: v.clone() for k, v in before.items()}
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    assert after["step"] == end + 2
+    changed = {k for k in before if not torch.equal(before[k], after["model"][k])}
+    assert changed and all(k.startswith("dynamics.") for k in changed)
+    rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
+    assert all(float(r["latent"]) > 0 and float(r["loss"]) == float(r["latent"]) and float(r["ce"]) == 0
+               for r in rows)
+    with pytest.raises(ValueError, match="dynamics_steps must be an integer >= 0"):
+        ci(dynamics_steps=-1).validate()
 
 
 def test_nan_stops_and_keeps_last_good_checkpoint(buffer, tmp_path):
@@ -126,8 +144,10 @@ def test_schedules_and_batch_order():
     red = get_preset("reduced")
     main = red.train.main_steps()
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
-    assert red.train.total_steps() == main + red.train.polish_steps == 3100
-    assert lr_at(main, red) == lr_at(red.train.total_steps() - 1, red) == red.train.polish_lr
+    assert red.train.polish_end() == main + red.train.polish_steps == 3100
+    assert red.train.total_steps() == 3100 + red.train.dynamics_steps == 5100
+    assert lr_at(main, red) == lr_at(red.train.polish_end() - 1, red) == red.train.polish_lr
+    assert lr_at(3100, red) == lr_at(5099, red) == red.train.dynamics_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))

@@ -23,7 +23,8 @@ Training loss for a video of T frames (per-image sums, averaged over images):
              (0 in `paper`)
     loss     = mse + ce + ce_dyn + weights * (mix, mask, latent)
 ce and ce_dyn reach slot attention with their gradient scaled by cfg.decoder.slot_grad
-(1 in `paper`; `reduced` lets the slots learn from the mixture decoder alone).
+(1 in `paper`; `reduced` lets the slots learn from the mixture decoder alone). An optional
+last phase trains the dynamics alone on the latent loss (`dynamics_loss`).
 As in SLATE, the transformer's targets are the dVAE's *sampled* hard tokens, detached,
 so the dVAE learns only from its reconstruction and the rest only from the tokens.
 
@@ -251,6 +252,20 @@ class DSlate(nn.Module):
             loss = loss + self.cfg.dynamics.latent_weight * out["latent"]
         out["loss"] = loss
         return out
+
+    def dynamics_loss(self, videos: torch.Tensor, actions: torch.Tensor) -> dict:
+        """The dynamics phase's loss (TrainConfig.dynamics_steps): the latent loss alone, on
+        slots inferred through each video without gradient, with `eval_iterations` as NCS
+        and MPC read them. Only the dynamics receives a gradient. The other LOSSES are 0."""
+        videos = self._check_images(videos, 5, "videos")
+        B, T = videos.shape[:2]
+        with torch.no_grad():
+            x = videos.flatten(0, 1).float() / 255.0
+            slots, _ = self._inputs_to_slots(self._slot_inputs(x), T,
+                                             iterations=self.cfg.slots.eval_iterations)
+        pred = self.dynamics(slots[:, :-1], actions.to(videos.device))
+        latent = (pred[..., self.type_dim:] - slots[:, 1:, :, self.type_dim:]).float().pow(2).sum((2, 3)).mean()
+        return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
 
     def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor,
                       foreground_weight: float | None = None) -> torch.Tensor:
