@@ -46,8 +46,9 @@ import torch
 from .config import DSlateConfig, config_diff, get_preset, to_dict
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
-from .utils import (atomic_torch_save, check_weights, file_kind, load_tensor_file, package_versions, progress,
-                    provenance, relative_to_repo, seed_everything, source_hash, tensor_digest)
+from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
+                    package_versions, progress, provenance, relative_to_repo, seed_everything, source_hash,
+                    tensor_digest)
 
 __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
            "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",
@@ -272,7 +273,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     from .data import EpisodeDataset, load_manifest, manifest_hash
 
     cfg.validate()
-    out_path = Path(out_path)
+    out_path = check_out_file(out_path, "checkpoint")
     device = resolve_device(device)
     precision = resolve_precision(precision or cfg.train.precision, device)
     total = cfg.train.total_steps()

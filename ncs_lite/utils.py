@@ -172,6 +172,33 @@ def check_weights(sd: dict, path, keys: tuple[str, ...]) -> dict:
     return sd
 
 
+def check_out_file(path: str | os.PathLike, what: str) -> Path:
+    """ValueError naming `path` unless a `what` file can be written there: not a directory,
+    not below a file. Checked before the work, which would otherwise fail at its first save."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"--out {path} is a directory; expected the path of a {what} file")
+    _check_parents(path)
+    return path
+
+
+def check_out_dir(path: str | os.PathLike, what: str) -> Path:
+    """ValueError naming `path` unless it is (or can be made) a `what` directory."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path} is a file; expected a {what} directory")
+    _check_parents(path)
+    return path
+
+
+def _check_parents(path: Path) -> None:
+    for parent in path.parents:
+        if parent.exists():                       # the nearest folder that exists decides
+            if not parent.is_dir():
+                raise ValueError(f"--out {path} lies below {parent}, which is a file, not a directory")
+            return
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)

@@ -257,3 +257,28 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     # every kind tag the kit writes has a name for those messages
     kinds = {training.CHECKPOINT_KIND, *goal_conditioned.KINDS, graph_module.GRAPH_KIND, nf.GRAPH_KIND}
     assert kinds == set(u.FILE_KINDS)
+
+
+def test_out_that_is_a_directory_or_below_a_file_is_refused(buffer, tmp_path, capsys):
+    """Every command that writes --out checks it first: one line naming it, exit 2, nothing written."""
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    data = ["--data", str(buffer)]
+    commands = {  # command: (its arguments but --out, what --out should be)
+        "train": (["train", "--preset", "ci", *data], "file", "checkpoint"),
+        "train-baseline": (["train-baseline", "--method", "bc", "--preset", "ci", *data], "file", "bc checkpoint"),
+        "graph": (["graph", "--oracle", *data], "file", "graph"),
+        "graph-nf": (["graph-nf", "--oracle", *data], "file", "NF graph"),
+        "evaluate": (["evaluate", "--method", "random", "--episodes", "1"], "file", "CSV"),
+        "collect": (["collect", "--episodes", "2"], "dir", "buffer"),
+    }
+    for name, (args, kind, what) in commands.items():
+        bad = ({tmp_path: f"--out {tmp_path} is a directory; expected the path of a {what} file"} if kind == "file"
+               else {afile: f"--out {afile} is a file; expected a {what} directory"})
+        bad[afile / "sub" / "x"] = f"--out {afile / 'sub' / 'x'} lies below {afile}, which is a file, not a directory"
+        for out, message in bad.items():
+            before = sorted(tmp_path.iterdir())
+            assert main([*args, "--out", str(out)]) == 2, name
+            err = capsys.readouterr().err
+            assert message in err and err.count("\n") == 1, (name, err)
+            assert sorted(tmp_path.iterdir()) == before, name          # no lock, log or temporary left

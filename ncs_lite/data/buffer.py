@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ..envs import make
-from ..utils import atomic_path, atomic_write_json, cache_dir, package_versions, progress
+from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, package_versions, progress
 
 FORMAT = 1
 FRAMES = 5  # frames per episode: 4 actions
@@ -68,7 +68,7 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
     """Collect (or resume collecting) a buffer of `episodes` random episodes into `out`."""
     episodes, shard_size = _check("episodes", episodes), _check("shard_size", shard_size)
     seed = _check("seed", seed, low=0)
-    out = Path(out)
+    out = check_out_dir(out, "buffer")
     manifest = _manifest(env, episodes, num_objects, seed, shard_size)
     path = out / "manifest.json"
     if path.exists():
