@@ -190,3 +190,18 @@ def test_legacy_shards_load_and_a_broken_manifest_is_named(buffers, tmp_path, ca
             assert main(args) == 2
             err = capsys.readouterr().err
             assert message in err and path in err and err.count("\n") == 1, err
+
+
+def test_cached_buffer_is_keyed_by_the_code_that_records_it(tmp_path, monkeypatch):
+    import ncs_lite.cache as cache
+    from ncs_lite.data import cached_buffer, manifest_hash
+    from ncs_lite.data.buffer import BUFFER_CODE
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
+    old = cached_buffer(2)
+    assert old.parent == tmp_path / "buffers" and old.name == f"block-rearrange-k4-e2-s0-v1-{cache.code_digest(*BUFFER_CODE)}"
+    assert cached_buffer(2) == old
+    monkeypatch.setattr(cache, "code_digest", lambda *parts: "0123456789abcdef")     # as after an edit of envs/
+    new = cached_buffer(2)
+    assert new != old and new.name.endswith("-0123456789abcdef") and (new / "shard-00000.npz").exists()
+    assert manifest_hash(new) == manifest_hash(old)     # what checkpoints name a buffer by: they still fit

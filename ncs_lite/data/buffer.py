@@ -248,9 +248,20 @@ class EpisodeDataset(torch.utils.data.Dataset):
                 "actions": self.actions[e, t:t + self.window - 1]}
 
 
+# The code a buffer's episodes come from (rendering, physics, the recorder): the cache folder
+# is keyed by it, so an edit there collects a fresh buffer instead of serving the old one.
+BUFFER_CODE = ("envs", "data/buffer.py")
+
+
 def cached_buffer(episodes: int, env: str = "block-rearrange", num_objects: int = 4,
                   seed: int = 0) -> Path:
-    """A buffer in the cache folder, keyed by its config and the data format: collected on
-    first use, resumed if interrupted, reused afterwards."""
-    path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}"
+    """A buffer in the cache folder, keyed by its config, the data format and the code that
+    records it (BUFFER_CODE): collected on first use, resumed if interrupted, reused afterwards.
+
+    Checkpoints and graphs name their buffer by its manifest hash, which holds the config but
+    not this folder's name: one trained before a code change still fits the buffer collected
+    after it (`inference.obtain_dslate`, `train --resume`), so nothing retrains."""
+    from ..cache import code_digest
+
+    path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}-{code_digest(*BUFFER_CODE)}"
     return collect(path, episodes=episodes, env=env, num_objects=num_objects, seed=seed)
