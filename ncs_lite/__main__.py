@@ -32,10 +32,11 @@ def _graph(args):
     from .inference import load_dslate
     from .ncs.graph import build_graph
     from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions
-    from .utils import provenance, relative_to_repo, sha256_file
+    from .utils import check_out_file, provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
+    check_out_file(args.out, "graph")
     from .data import load_manifest
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
 
@@ -66,8 +67,10 @@ def _evaluate(args):
     from .evaluation import NEEDS, TaskSet, agent_factory, evaluate, summarize, write_csv
     from .inference import load_dslate, shipped_asset
     from .ncs.graph import TransitionGraph
-    from .utils import provenance
+    from .utils import check_out_file, provenance
 
+    if args.out:
+        check_out_file(args.out, "CSV")         # before the episodes, not after them
     sections = split_overrides(args.overrides, ("ncs", "mpc"))
     needs = NEEDS.get(args.method, ())
     asked = args.state or next((parse_override(o)[1] for o in sections["ncs"]

@@ -21,7 +21,9 @@ What the loop guarantees:
   good checkpoint untouched. A loss CSV (`<out>.csv`) is written beside the checkpoint.
 * Checkpoints contain only tensors, dicts, lists and primitives, so they load with
   `torch.load(path, weights_only=True)`; a checkpoint from other code or another config
-  is refused with a ValueError naming the difference.
+  is refused with a ValueError naming the difference. Each holds a kind tag ("dslate") and
+  a digest of its tensors, checked on load: another kind of file, a flipped byte or a
+  non-finite weight is refused naming the path (files from before the tag still load).
 * Nothing is lost: `--resume` refuses a checkpoint of another config, precision, env,
   buffer (manifest hash) or training code (`training_code_version`), naming what differs;
   a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
@@ -45,8 +47,9 @@ import torch
 from .config import DSlateConfig, config_diff, get_preset, to_dict
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
-from .utils import (atomic_torch_save, package_versions, progress, provenance, relative_to_repo,
-                    seed_everything, source_hash)
+from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
+                    package_versions, progress, provenance, relative_to_repo, seed_everything, source_hash,
+                    tensor_digest)
 
 __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
            "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",
@@ -56,6 +59,8 @@ __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr
 TRAINING_CODE = ("models", "training.py", "config.py", "data", "envs")
 
 CHECKPOINT_FORMAT = 1
+CHECKPOINT_KIND = "dslate"                   # files from before the tag have none
+DIGESTED = ("model", "optimizer", "rng")     # the tensors the stored content digest covers
 CSV_FIELDS = ["step", *LOSSES, "tau", "lr", "grad_norm", "seconds"]
 
 
@@ -153,23 +158,20 @@ def build_optimizer(model: DSlate, cfg: DSlateConfig) -> torch.optim.Adam:
 
 # ---------------------------------------------------------------------- checkpoints
 def read_checkpoint(path: str | Path, map_location="cpu") -> dict:
-    """Load and check a dSLATE checkpoint (weights_only=True). ValueError when it is not one
-    or was written by an incompatible version of the code."""
+    """Load and check a dSLATE checkpoint (weights_only=True). ValueError naming `path` when
+    it is not one (naming what it is), was written by an incompatible version of the code,
+    does not match its content digest, or holds non-finite weights."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as e:  # noqa: BLE001 - unpickling errors come in many types
-        raise ValueError(f"{path} is not a loadable dSLATE checkpoint: {e}") from e
-    if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
-        raise ValueError(f"{path} is not a dSLATE checkpoint (expected a dict with 'model' "
-                         f"and 'config', got keys {sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt)})")
+    ckpt = load_tensor_file(path, "dSLATE checkpoint", "train one with `python -m ncs_lite train`",
+                            map_location=map_location)
+    if ckpt.get("kind", CHECKPOINT_KIND) != CHECKPOINT_KIND or "model" not in ckpt or "config" not in ckpt:
+        raise ValueError(f"{path} is not a dSLATE checkpoint (kind {CHECKPOINT_KIND!r} with 'model' and "
+                         f"'config'); it holds {file_kind(ckpt)}")
     if ckpt.get("format") != CHECKPOINT_FORMAT or ckpt.get("model_version") != MODEL_VERSION:
         raise ValueError(f"{path} was written by another version of the code: checkpoint format "
                          f"{ckpt.get('format')!r} / model {ckpt.get('model_version')!r}, this code "
                          f"expects format {CHECKPOINT_FORMAT} / model {MODEL_VERSION!r}; retrain it")
-    return ckpt
+    return check_weights(ckpt, path, DIGESTED)
 
 
 def _rng_state(device: torch.device) -> dict:
@@ -233,7 +235,8 @@ def _resume_differences(ckpt: dict, cfg, precision: str, env: str, data_meta: di
 
 def _save(path, model, opt, cfg, step, device, precision, env, data_meta, seconds, last,
           version, overrides) -> None:
-    atomic_torch_save({
+    ckpt = {
+        "kind": CHECKPOINT_KIND,
         "format": CHECKPOINT_FORMAT,
         "model_version": MODEL_VERSION,
         "code_version": version,
@@ -248,7 +251,8 @@ def _save(path, model, opt, cfg, step, device, precision, env, data_meta, second
         "model": model.state_dict(),
         "optimizer": opt.state_dict(),
         "rng": _rng_state(device),
-    }, path)
+    }
+    atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, path)
 
 
 # ---------------------------------------------------------------------- the loop
@@ -272,7 +276,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     from .data import EpisodeDataset, load_manifest, manifest_hash
 
     cfg.validate()
-    out_path = Path(out_path)
+    out_path = check_out_file(out_path, "checkpoint")
     device = resolve_device(device)
     precision = resolve_precision(precision or cfg.train.precision, device)
     total = cfg.train.total_steps()

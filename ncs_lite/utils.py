@@ -111,7 +111,7 @@ def atomic_path(path: str | os.PathLike):
             os.unlink(tmp)
 
 
-def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "") -> dict:
+def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "", map_location="cpu") -> dict:
     """`torch.load(path, weights_only=True)` of a file that must hold a dict; FileNotFoundError
     or ValueError naming the file and `what` it should be (truncated, not a torch file, a
     pickle that is not plain tensors, a directory) instead of the unpickler's own error."""
@@ -123,12 +123,80 @@ def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "") -> dict
     if not path.is_file():
         raise ValueError(f"{path} is a directory, expected a {what} file")
     try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
+        obj = torch.load(path, weights_only=True, map_location=map_location)
     except Exception as e:  # noqa: BLE001 - truncated zips, foreign pickles, ... come in many types
         raise ValueError(f"{path} is not a readable {what} ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
     if not isinstance(obj, dict):
         raise ValueError(f"{path} is not a {what} (it holds a {type(obj).__name__}, expected a dict)")
     return obj
+
+
+# The kind tag of each file type the kit writes, and what it is called in an error about a
+# file passed in the wrong place (`TransitionGraph.load` given a checkpoint, ...).
+FILE_KINDS = {"dslate": "a dSLATE checkpoint", "bc": "a BC checkpoint", "iql": "an IQL checkpoint",
+              "ncs-graph": "an NCS transition graph", "nf-graph": "an NF graph"}
+
+
+def file_kind(sd: dict) -> str:
+    """What a loaded file is, from its kind tag or, for files written before the tags, its keys."""
+    if "kind" in sd:
+        return FILE_KINDS.get(sd["kind"], f"a file of kind {sd['kind']!r}")
+    if "model_version" in sd:
+        return "a dSLATE checkpoint"
+    if "centroids" in sd:
+        return "an NF graph" if "sets" in sd else "an NCS transition graph"
+    return f"a dict with keys {sorted(map(str, sd))[:6]}"
+
+
+def tensor_digest(sd: dict, keys: tuple[str, ...]) -> str:
+    """Digest of a checkpoint's tensors under `keys` (model, optimizer, ...): stored when it
+    is saved, compared when it is loaded (`check_weights`)."""
+    from .cache import digest
+
+    return digest(*[sd.get(k) for k in keys])
+
+
+def check_weights(sd: dict, path, keys: tuple[str, ...]) -> dict:
+    """ValueError naming `path` when a checkpoint's tensors do not match the content digest
+    stored with them (files from before the digest have none) or its weights (`sd["model"]`)
+    are not all finite: a flipped byte or a NaN would otherwise load without complaint."""
+    import torch
+
+    if "content_digest" in sd and tensor_digest(sd, keys) != sd["content_digest"]:
+        raise ValueError(f"{path} is corrupted: its weights do not match the digest stored when it was saved")
+    bad = [k for k, t in sd["model"].items()
+           if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all())]
+    if bad:
+        raise ValueError(f"{path} holds non-finite weights ({len(bad)} of {len(sd['model'])} tensors, "
+                         f"e.g. {bad[0]}); expected finite ones: retrain it")
+    return sd
+
+
+def check_out_file(path: str | os.PathLike, what: str) -> Path:
+    """ValueError naming `path` unless a `what` file can be written there: not a directory,
+    not below a file. Checked before the work, which would otherwise fail at its first save."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"--out {path} is a directory; expected the path of a {what} file")
+    _check_parents(path)
+    return path
+
+
+def check_out_dir(path: str | os.PathLike, what: str) -> Path:
+    """ValueError naming `path` unless it is (or can be made) a `what` directory."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path} is a file; expected a {what} directory")
+    _check_parents(path)
+    return path
+
+
+def _check_parents(path: Path) -> None:
+    for parent in path.parents:
+        if parent.exists():                       # the nearest folder that exists decides
+            if not parent.is_dir():
+                raise ValueError(f"--out {path} lies below {parent}, which is a file, not a directory")
+            return
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

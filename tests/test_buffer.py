@@ -89,3 +89,119 @@ def test_cli_collect(tmp_path, capsys):
     assert load_buffer(tmp_path)["frames"].shape[0] == 2
     assert main(["collect", "--episodes", "0", "--out", str(tmp_path / "x")]) == 2
     assert "episodes must be" in capsys.readouterr().err
+
+
+def _rewrite(shard, change):
+    """Save `change(arrays)` over `shard`, the way `collect` saves one."""
+    with np.load(shard) as z:
+        arrays = {k: z[k] for k in z.files}
+    with open(shard, "wb") as f:
+        np.savez_compressed(f, **change(arrays))
+
+
+def _flip_a_frames_byte(shard):
+    import zipfile
+
+    with zipfile.ZipFile(shard) as z:
+        info = z.getinfo("frames.npy")
+    data = bytearray(shard.read_bytes())
+    at = info.header_offset + 30 + len(info.filename) + info.compress_size // 2   # inside the deflate stream
+    data[at] ^= 0xFF
+    shard.write_bytes(bytes(data))
+
+
+@pytest.fixture(scope="module")
+def buffers(tmp_path_factory):
+    root = tmp_path_factory.mktemp("buffers")
+    return (collect(root / "good", episodes=4, seed=5, shard_size=2),
+            collect(root / "other", episodes=4, seed=6, shard_size=2))
+
+
+SHARD_SPOILS = {  # how shard 0 is spoilt: what the one-line error says
+    "truncated": (lambda p, other: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]),
+                  "is not a readable .npz (BadZipFile"),
+    "empty": (lambda p, other: p.write_bytes(b""), "is not an .npz (an empty file)"),
+    "not an npz": (lambda p, other: p.write_text("hello"), "is not an .npz (it starts with b'hell', not a zip header)"),
+    "a flipped byte": (lambda p, other: _flip_a_frames_byte(p), "is corrupted (BadZipFile: Bad CRC-32 for file 'frames.npy')"),
+    "an array missing": (lambda p, other: _rewrite(p, lambda a: {k: v for k, v in a.items() if k != "moved"}),
+                         "lacks the arrays ['moved']; expected frames, actions"),
+    "fewer episodes": (lambda p, other: _rewrite(p, lambda a: {k: v[:1] if v.ndim else v for k, v in a.items()}),
+                       "holds 1 episodes in 'frames', expected 2"),
+    "more episodes": (lambda p, other: _rewrite(p, lambda a: {k: np.concatenate([v, v[:1]]) if v.ndim else v
+                                                              for k, v in a.items()}),
+                      "holds 3 episodes in 'frames', expected 2"),
+    "another buffer's": (lambda p, other: p.write_bytes((other / p.name).read_bytes()), "belongs to another buffer"),
+}
+
+
+@pytest.mark.parametrize("spoil", SHARD_SPOILS)
+def test_a_bad_shard_is_named_and_collected_again(spoil, buffers, tmp_path, capsys):
+    import shutil
+
+    good, other = buffers
+    case = tmp_path / "b"
+    shutil.copytree(good, case)
+    shard = case / "shard-00000.npz"
+    how, message = SHARD_SPOILS[spoil]
+    how(shard, other)
+    with pytest.raises(ValueError) as err:
+        load_buffer(case)
+    assert message in str(err.value) and str(shard) in str(err.value), err.value
+    assert "rerun the same `collect` command" in str(err.value)
+    assert main(["train", "--preset", "ci", "--data", str(case), "--out", str(tmp_path / "m.pt")]) == 2
+    captured = capsys.readouterr().err
+    assert message in captured and captured.count("\n") == 1
+    # collect over it makes that shard again (never "buffer ready" over a bad one)
+    assert main(["collect", "--episodes", "4", "--seed", "5", "--shard-size", "2", "--out", str(case)]) == 0
+    out = capsys.readouterr().out
+    assert f"collecting {shard.name} again: buffer shard {shard}" in out and message in out
+    for k, v in load_buffer(good).items():
+        np.testing.assert_array_equal(load_buffer(case)[k], v)
+
+
+def test_legacy_shards_load_and_a_broken_manifest_is_named(buffers, tmp_path, capsys):
+    import shutil
+
+    from ncs_lite.data import manifest_hash
+    from ncs_lite.data.buffer import SHARD_ID
+
+    good, _ = buffers
+    with np.load(good / "shard-00001.npz") as z:
+        assert str(z[SHARD_ID]) == manifest_hash(good)     # each shard names its buffer
+    legacy = tmp_path / "legacy"
+    shutil.copytree(good, legacy)
+    for shard in legacy.glob("shard-*.npz"):                # shards from before the hash
+        _rewrite(shard, lambda a: {k: v for k, v in a.items() if k != SHARD_ID})
+    for k, v in load_buffer(good).items():
+        np.testing.assert_array_equal(load_buffer(legacy)[k], v)
+    manifest = json.loads((good / "manifest.json").read_text())
+    cases = {"{": "is not a readable buffer manifest (JSONDecodeError",
+             "[]": "is not a valid buffer manifest: it holds a JSON list, expected an object",
+             json.dumps({**manifest, "episodes": "4"}): "episodes must be an integer >= 1, got '4'",
+             json.dumps({k: v for k, v in manifest.items() if k != "shard_size"}): "shard_size must be an integer",
+             json.dumps({**manifest, "format": 0}): "format 0, this code reads format 1"}
+    for text, message in cases.items():
+        case = tmp_path / f"m{len(text)}"
+        shutil.copytree(good, case)
+        (case / "manifest.json").write_text(text)
+        path = str(case / "manifest.json")
+        for args in (["collect", "--episodes", "4", "--seed", "5", "--shard-size", "2", "--out", str(case)],
+                     ["train", "--preset", "ci", "--data", str(case), "--out", str(tmp_path / "m.pt")]):
+            assert main(args) == 2
+            err = capsys.readouterr().err
+            assert message in err and path in err and err.count("\n") == 1, err
+
+
+def test_cached_buffer_is_keyed_by_the_code_that_records_it(tmp_path, monkeypatch):
+    import ncs_lite.cache as cache
+    from ncs_lite.data import cached_buffer, manifest_hash
+    from ncs_lite.data.buffer import BUFFER_CODE
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
+    old = cached_buffer(2)
+    assert old.parent == tmp_path / "buffers" and old.name == f"block-rearrange-k4-e2-s0-v1-{cache.code_digest(*BUFFER_CODE)}"
+    assert cached_buffer(2) == old
+    monkeypatch.setattr(cache, "code_digest", lambda *parts: "0123456789abcdef")     # as after an edit of envs/
+    new = cached_buffer(2)
+    assert new != old and new.name.endswith("-0123456789abcdef") and (new / "shard-00000.npz").exists()
+    assert manifest_hash(new) == manifest_hash(old)     # what checkpoints name a buffer by: they still fit

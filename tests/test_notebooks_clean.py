@@ -1,4 +1,6 @@
-"""Committed notebooks carry no outputs, use the python3 kernel and the house skeleton."""
+"""Committed notebooks carry no outputs, use the python3 kernel and the house skeleton, and
+close every env they make in the cell that makes it."""
+import ast
 import json
 from pathlib import Path
 
@@ -23,3 +25,30 @@ def test_notebook_is_clean(path):
     text = "\n".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "markdown")
     for heading in ("## Setup", "## Summary", "## Exercises", "## References"):
         assert heading in text, f"{path.name} lacks the '{heading}' section"
+
+
+ENV_MAKERS = ("make", "make_env")    # ncs_lite.envs.make, TaskSet.make_env
+
+
+def _opened_and_closed(tree):
+    """Names a cell assigns an env to (`env = make(...)`), and names it calls `.close()` on."""
+    opened, closed = set(), set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Call):
+            f = node.value.func
+            if getattr(f, "id", None) in ENV_MAKERS or getattr(f, "attr", None) in ENV_MAKERS:
+                opened |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+        if isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "close":
+            if isinstance(node.func.value, ast.Name):
+                closed.add(node.func.value.id)
+    return opened, closed
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_every_env_is_closed_in_the_cell_that_makes_it(path):
+    """A PyBullet or MuJoCo env left open holds its simulator until the kernel dies (and a
+    rerun cell opens another): `with make(...) as env:` or `env.close()` in the same cell."""
+    code = [c for c in json.loads(path.read_text())["cells"] if c["cell_type"] == "code"]
+    for i, cell in enumerate(code):
+        opened, closed = _opened_and_closed(ast.parse("".join(cell["source"])))
+        assert opened <= closed, f"{path.name}, code cell {i}: {sorted(opened - closed)} never closed in that cell"

@@ -191,3 +191,94 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
     assert "unknown environment 'bogus'" in capsys.readouterr().err
     assert main(["train", "--preset", "ci", "--device", "bogus", "--data", buf, "--out", str(tmp_path / "m.pt")]) == 2
     assert "unknown device 'bogus'" in capsys.readouterr().err
+
+
+def _flip_a_weight_byte(src, dst):
+    """A copy of checkpoint `src` with one byte of its largest weight flipped, as on a bad disk."""
+    model = torch.load(src, weights_only=True)["model"]
+    raw = max(model.values(), key=lambda t: t.numel()).numpy().tobytes()
+    data = bytearray(src.read_bytes())
+    at = data.find(raw[:64])
+    assert at > 0
+    data[at + 4] ^= 0x01
+    dst.write_bytes(bytes(data))
+    return str(dst)
+
+
+def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
+    """dSLATE and BC/IQL checkpoints carry a kind tag and a digest of their tensors: a flipped
+    byte, non-finite weights or another kind of file is refused in one line naming the path
+    and what the file is; files written before the tag and digest (the shipped ones) load."""
+    from ncs_lite import utils as u
+    from ncs_lite.baselines import bc as bc_module, goal_conditioned, nf
+    from ncs_lite.baselines.runs import load_trained_policy
+    from ncs_lite.inference import SHIPPED_CHECKPOINT, SHIPPED_GRAPH, SHIPPED_POLICIES, load_dslate
+    from ncs_lite.ncs import graph as graph_module
+    from ncs_lite import training
+
+    dslate = train(get_preset("ci"), buffer, tmp_path / "m.pt", max_steps=1)
+    bc = tmp_path / "bc.pt"
+    assert main(["train-baseline", "--method", "bc", "--preset", "ci", "--set", "bc.steps=2",
+                 "--data", str(buffer), "--out", str(bc)]) == 0
+    assert {"kind", "content_digest"} <= set(read_checkpoint(dslate))
+    sd = torch.load(dslate, weights_only=True)
+    for t in sd["model"].values():
+        t.fill_(float("nan"))
+    del sd["content_digest"]                              # a file from before the digest
+    torch.save(sd, tmp_path / "nan.pt")
+    model = load_trained_policy(bc, "bc")
+    for p in model.parameters():
+        p.data.fill_(float("nan"))
+    bc_module.save_bc(tmp_path / "nan-bc.pt", model)      # digest of the NaNs it saved
+    graph = str(SHIPPED_GRAPH)
+    cases = [  # (flag, method, file, what the one line says)
+        ("--checkpoint", "ncs", _flip_a_weight_byte(dslate, tmp_path / "flip.pt"), "is corrupted"),
+        ("--checkpoint", "ncs", str(tmp_path / "nan.pt"), "holds non-finite weights"),
+        ("--checkpoint", "ncs", graph, "is not a dSLATE checkpoint (kind 'dslate' with 'model' and 'config'); "
+                                       "it holds an NCS transition graph"),
+        ("--checkpoint", "ncs", str(bc), "it holds a BC checkpoint"),
+        ("--policy", "bc", _flip_a_weight_byte(bc, tmp_path / "flip-bc.pt"), "is corrupted"),
+        ("--policy", "bc", str(tmp_path / "nan-bc.pt"), "holds non-finite weights"),
+        ("--policy", "bc", str(dslate), "is not an ncs-lite baseline checkpoint (format 1, kind 'bc' or 'iql'); "
+                                        "it holds a dSLATE checkpoint"),
+        ("--policy", "bc", graph, "it holds an NCS transition graph"),
+        ("--graph", "ncs-oracle", str(dslate), "it holds a dSLATE checkpoint"),
+        ("--graph", "ncs-oracle", str(bc), "it holds a BC checkpoint"),
+    ]
+    for flag, method, path, message in cases:
+        assert main(["evaluate", "--method", method, flag, path, "--episodes", "1"]) == 2, path
+        err = capsys.readouterr().err
+        assert message in err and path in err and err.count("\n") == 1, (path, err)
+    # files written before the kind tag and digest load unchanged
+    assert "content_digest" not in torch.load(SHIPPED_CHECKPOINT, weights_only=True)
+    assert load_dslate(SHIPPED_CHECKPOINT).checkpoint_info["step"] > 0
+    for method, path in SHIPPED_POLICIES.items():
+        assert load_trained_policy(path, method).step > 0
+    # every kind tag the kit writes has a name for those messages
+    kinds = {training.CHECKPOINT_KIND, *goal_conditioned.KINDS, graph_module.GRAPH_KIND, nf.GRAPH_KIND}
+    assert kinds == set(u.FILE_KINDS)
+
+
+def test_out_that_is_a_directory_or_below_a_file_is_refused(buffer, tmp_path, capsys):
+    """Every command that writes --out checks it first: one line naming it, exit 2, nothing written."""
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    data = ["--data", str(buffer)]
+    commands = {  # command: (its arguments but --out, what --out should be)
+        "train": (["train", "--preset", "ci", *data], "file", "checkpoint"),
+        "train-baseline": (["train-baseline", "--method", "bc", "--preset", "ci", *data], "file", "bc checkpoint"),
+        "graph": (["graph", "--oracle", *data], "file", "graph"),
+        "graph-nf": (["graph-nf", "--oracle", *data], "file", "NF graph"),
+        "evaluate": (["evaluate", "--method", "random", "--episodes", "1"], "file", "CSV"),
+        "collect": (["collect", "--episodes", "2"], "dir", "buffer"),
+    }
+    for name, (args, kind, what) in commands.items():
+        bad = ({tmp_path: f"--out {tmp_path} is a directory; expected the path of a {what} file"} if kind == "file"
+               else {afile: f"--out {afile} is a file; expected a {what} directory"})
+        bad[afile / "sub" / "x"] = f"--out {afile / 'sub' / 'x'} lies below {afile}, which is a file, not a directory"
+        for out, message in bad.items():
+            before = sorted(tmp_path.iterdir())
+            assert main([*args, "--out", str(out)]) == 2, name
+            err = capsys.readouterr().err
+            assert message in err and err.count("\n") == 1, (name, err)
+            assert sorted(tmp_path.iterdir()) == before, name          # no lock, log or temporary left

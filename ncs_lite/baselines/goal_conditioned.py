@@ -10,7 +10,8 @@
   the same episode. Draw t uniformly in 0..T-2, then the goal frame j uniformly in t+1..T-1.
   The draws of step n depend only on (seed, n), so a resumed run sees the same batches.
 - `save_checkpoint` / `read_checkpoint`: one dict of tensors and plain values with a `kind`
-  tag ("bc", "iql"), loaded with `torch.load(weights_only=True)`.
+  tag ("bc", "iql") and a digest of its tensors, loaded with `torch.load(weights_only=True)`
+  and refused (naming the path) when it is another kind of file, corrupted or non-finite.
 
 Shapes: B batch, E episodes, T frames per episode (5), H = W = 64 pixels.
 """
@@ -23,9 +24,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..utils import atomic_torch_save
+from ..utils import atomic_torch_save, check_weights, file_kind, load_tensor_file, tensor_digest
 
 CHECKPOINT_FORMAT = 1
+KINDS = ("bc", "iql")                  # the kind tags of baseline checkpoints
+DIGESTED = ("model", "optimizer")      # the tensors the stored content digest covers
 BUFFER_KEYS = ("frames", "actions")
 
 
@@ -211,28 +214,25 @@ def observation_tensors(obs) -> tuple[torch.Tensor, torch.Tensor]:
 def save_checkpoint(path, kind: str, model: nn.Module, cfg, *, step: int, log: list[dict],
                     optimizer=None, info: dict | None = None) -> Path:
     """Atomically write a baseline checkpoint (weights_only-loadable)."""
-    atomic_torch_save({"format": CHECKPOINT_FORMAT, "kind": kind, "config": asdict(cfg),
-                       "model": model.state_dict(),
-                       "optimizer": None if optimizer is None else optimizer.state_dict(),
-                       "step": int(step), "log": [dict(r) for r in log], "info": dict(info or {})}, path)
+    ckpt = {"format": CHECKPOINT_FORMAT, "kind": kind, "config": asdict(cfg), "model": model.state_dict(),
+            "optimizer": None if optimizer is None else optimizer.state_dict(),
+            "step": int(step), "log": [dict(r) for r in log], "info": dict(info or {})}
+    atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, path)
     return Path(path)
 
 
 def read_checkpoint(path, kind: str | None) -> dict:
-    """Load a checkpoint written by `save_checkpoint`; ValueError unless it is a `kind` one
-    (any kind when None)."""
+    """Load a checkpoint written by `save_checkpoint`; ValueError naming `path` unless it is a
+    `kind` one (any of KINDS when None) whose tensors match their digest and are finite."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no {kind or 'baseline'} checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001 - unpickling errors come in many types
-        raise ValueError(f"{path} is not a loadable checkpoint: {e}") from e
-    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT or "kind" not in ckpt:
-        raise ValueError(f"{path} is not an ncs-lite baseline checkpoint (format {CHECKPOINT_FORMAT} with a kind tag)")
+    ckpt = load_tensor_file(path, f"{kind or 'baseline'} checkpoint",
+                            "train one with `python -m ncs_lite train-baseline`")
+    if ckpt.get("format") != CHECKPOINT_FORMAT or ckpt.get("kind") not in KINDS or "model" not in ckpt:
+        raise ValueError(f"{path} is not an ncs-lite baseline checkpoint (format {CHECKPOINT_FORMAT}, kind "
+                         f"{' or '.join(map(repr, KINDS))}); it holds {file_kind(ckpt)}")
     if kind is not None and ckpt["kind"] != kind:
         raise ValueError(f"{path} is a {ckpt['kind']!r} checkpoint, expected {kind!r}")
-    return ckpt
+    return check_weights(ckpt, path, DIGESTED)
 
 
 def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=None,

@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE, check_graph_file, content_digest, edge_tensors
 from ..ncs.kmeans import assign, kmeans
-from ..utils import atomic_torch_save, load_tensor_file
+from ..utils import atomic_torch_save, file_kind, load_tensor_file
 
 GRAPH_KIND = "nf-graph"
 GRAPH_FORMAT = 1
@@ -177,8 +177,7 @@ class SetGraph:
     def load(cls, path: str | Path) -> "SetGraph":
         sd = load_tensor_file(path, "NF graph", "build one with `python -m ncs_lite graph-nf`")
         if sd.get("kind") != GRAPH_KIND or "sets" not in sd:
-            raise ValueError(f"{path} is not an ncs-lite NF graph (kind {GRAPH_KIND!r}); it holds "
-                             f"{sd.get('kind') or 'an untagged file'}")
+            raise ValueError(f"{path} is not an ncs-lite NF graph (kind {GRAPH_KIND!r}); it holds {file_kind(sd)}")
         check_graph_file(sd, path, GRAPH_KIND, "NF graph")
         sets = [tuple(v for v in row if v >= 0) for row in sd["sets"].tolist()]
         graph = cls(sd["centroids"], sd["bind_metric"], sets, {}, sd["info"])

@@ -57,10 +57,10 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
     from ..cache import code_digest
     from ..data import load_buffer, manifest_hash
     from ..envs import make
-    from ..utils import provenance, relative_to_repo
+    from ..utils import check_out_file, provenance, relative_to_repo
 
     _method(method)
-    out = Path(out)
+    out = check_out_file(out, f"{method} checkpoint")
     if resume and force:
         raise ValueError("give --resume or --force, not both")
     made = provenance(out, allow_dirty)
@@ -149,11 +149,12 @@ def _graph_nf(args) -> None:
     from ..inference import load_dslate
     from ..ncs.graph import TransitionGraph
     from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions
-    from ..utils import provenance, relative_to_repo
+    from ..utils import check_out_file, provenance, relative_to_repo
     from .nf import set_graph_from_transitions
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NF) or --oracle")
+    check_out_file(args.out, "NF graph")
     bind = TransitionGraph.load(args.bind_graph) if args.bind_graph else None
     cfg = ncs_config(args.overrides, clusters=args.clusters, state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)

@@ -4,26 +4,33 @@ Each episode has `frames` = 5 images and 4 pick-and-move actions; each action mo
 random cube to a random free cell (Appendix A, DESIGN.md). A buffer directory holds
 
     manifest.json        what was asked for (env config, episodes, seed, format, versions)
-    shard-00000.npz ...  `shard_size` episodes each, written atomically
+    shard-00000.npz ...  `shard_size` episodes each, written atomically, with the manifest's
+                         hash (`manifest_sha256`: the buffer the shard belongs to)
 
 Episode e is generated from `SeedSequence([seed, e])` alone, so the buffer does not depend
 on the shard size or on where an interrupted collection stopped: `collect` skips finished
 shards and writes the rest, which gives byte-identical arrays to an uninterrupted run.
+Every shard is checked when it is read (a readable npz, every array, the manifest's number
+of episodes, this buffer's hash; shards from before the hash have none): `load_buffer`
+refuses a bad one naming it, and `collect` collects it again.
 """
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ..envs import make
-from ..utils import atomic_path, atomic_write_json, cache_dir, package_versions, progress
+from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, package_versions, progress
 
 FORMAT = 1
 FRAMES = 5  # frames per episode: 4 actions
 ARRAYS = ("frames", "actions", "positions", "masks", "colors", "moved")
+SHARD_ID = "manifest_sha256"   # the array naming the buffer a shard belongs to
 
 
 def _manifest(env: str, episodes: int, num_objects: int, seed: int, shard_size: int) -> dict:
@@ -61,20 +68,30 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
     """Collect (or resume collecting) a buffer of `episodes` random episodes into `out`."""
     episodes, shard_size = _check("episodes", episodes), _check("shard_size", shard_size)
     seed = _check("seed", seed, low=0)
-    out = Path(out)
+    out = check_out_dir(out, "buffer")
     manifest = _manifest(env, episodes, num_objects, seed, shard_size)
     path = out / "manifest.json"
     if path.exists():
-        old = json.loads(path.read_text())
+        old = load_manifest(out)
         diff = {k: (old.get(k), v) for k, v in manifest.items() if old.get(k) != v}
         if diff:
             raise ValueError(f"{out} holds a different buffer (stored vs asked: {diff}); "
                              "use another --out or delete it")
     else:
         atomic_write_json(path, {**manifest, "versions": package_versions()})
+    buffer_id = manifest_hash(out)
 
     n_shards = -(-episodes // shard_size)
-    todo = [s for s in range(n_shards) if not (out / f"shard-{s:05d}.npz").exists()]
+    todo = []
+    for s in range(n_shards):
+        shard = out / f"shard-{s:05d}.npz"
+        if shard.exists():
+            try:                        # a shard that a crash, a disk or a copy spoilt is made again
+                _read_shard(shard, _shard_len(s, episodes, shard_size), buffer_id)
+                continue
+            except ValueError as e:
+                print(f"collect: collecting {shard.name} again: {e}")
+        todo.append(s)
     bar = progress(total=episodes, desc=f"collect {env}", unit="ep",
                    initial=episodes - sum(_shard_len(s, episodes, shard_size) for s in todo))
     env_ = make(env, num_objects=num_objects)
@@ -86,7 +103,7 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
                 bar.update(1)
             arrays = {k: np.stack([ep[k] for ep in eps]) for k in ARRAYS}
             with atomic_path(out / f"shard-{s:05d}.npz") as tmp, open(tmp, "wb") as f:
-                np.savez_compressed(f, **arrays)
+                np.savez_compressed(f, **arrays, **{SHARD_ID: np.array(buffer_id)})
     finally:
         env_.close()
         bar.close()
@@ -98,11 +115,35 @@ def _shard_len(s: int, episodes: int, shard_size: int) -> int:
 
 
 def load_manifest(directory: str | Path) -> dict:
+    """The buffer's manifest; FileNotFoundError without one, ValueError naming the file when
+    it is not JSON or lacks what the loader reads (format, episodes, shard_size, seed, env)."""
     path = Path(directory) / "manifest.json"
     if not path.exists():
         raise FileNotFoundError(f"no buffer at {directory} (missing manifest.json); "
                                 "create one with `python -m ncs_lite collect`")
-    return json.loads(path.read_text())
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as e:     # JSONDecodeError is a ValueError
+        raise ValueError(f"{path} is not a readable buffer manifest ({_why(e)}); "
+                         "delete the buffer and collect it again") from None
+    problem = _manifest_problem(m)
+    if problem:
+        raise ValueError(f"{path} is not a valid buffer manifest: {problem}; delete the buffer and collect it again")
+    return m
+
+
+def _manifest_problem(m) -> str | None:
+    if not isinstance(m, dict):
+        return f"it holds a JSON {type(m).__name__}, expected an object"
+    if m.get("format") != FORMAT:
+        return f"format {m.get('format')!r}, this code reads format {FORMAT}"
+    for name, low in (("episodes", 1), ("shard_size", 1), ("seed", 0)):
+        value = m.get(name)
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            return f"{name} must be an integer >= {low}, got {value!r}"
+    if not isinstance(m.get("env"), dict):
+        return f"env must be the env's config (an object), got {m.get('env')!r}"
+    return None
 
 
 def manifest_hash(directory: str | Path) -> str:
@@ -126,12 +167,58 @@ def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
     if missing:
         raise ValueError(f"buffer {directory} is incomplete: {len(missing)} of {n_shards} shards "
                          "missing; rerun the same `collect` command to resume it")
+    buffer_id = manifest_hash(directory)
     parts = {k: [] for k in ARRAYS}
     for s in range(n_shards):
-        with np.load(directory / f"shard-{s:05d}.npz") as z:
-            for k in ARRAYS:
-                parts[k].append(z[k])
+        try:
+            arrays = _read_shard(directory / f"shard-{s:05d}.npz", _shard_len(s, m["episodes"], m["shard_size"]),
+                                 buffer_id)
+        except ValueError as e:
+            raise ValueError(f"{e}; rerun the same `collect` command to collect it again") from None
+        for k in ARRAYS:
+            parts[k].append(arrays[k])
     return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+# what a spoilt npz raises: not a zip (truncated: no central directory), a short member,
+# a bad CRC or deflate stream, an npy header that does not parse
+_UNREADABLE = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
+
+
+def _why(e: Exception) -> str:
+    return f"{type(e).__name__}: {(str(e).splitlines() or [''])[0][:200]}"     # one line
+
+
+def _read_shard(path: Path, episodes: int, buffer_id: str) -> dict[str, np.ndarray]:
+    """The ARRAYS of one shard. ValueError naming `path` and what was expected when it is not
+    a readable npz, lacks an array, holds another number of episodes than the manifest says,
+    or records another buffer's manifest hash."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+        z = np.load(path) if head == b"PK\x03\x04" else None   # else np.load would unpickle it
+    except _UNREADABLE as e:
+        raise ValueError(f"buffer shard {path} is not a readable .npz ({_why(e)})") from None
+    if z is None:
+        raise ValueError(f"buffer shard {path} is not an .npz ("
+                         f"{f'it starts with {head!r}, not a zip header' if head else 'an empty file'})")
+    with z:
+        missing = [k for k in ARRAYS if k not in z.files]
+        if missing:
+            raise ValueError(f"buffer shard {path} lacks the arrays {missing}; expected {', '.join(ARRAYS)}")
+        try:
+            arrays = {k: z[k] for k in ARRAYS}
+            stored = str(z[SHARD_ID]) if SHARD_ID in z.files else buffer_id    # none before the hash
+        except _UNREADABLE as e:
+            raise ValueError(f"buffer shard {path} is corrupted ({_why(e)})") from None
+    if stored != buffer_id:
+        raise ValueError(f"buffer shard {path} belongs to another buffer (manifest hash {stored!r}, "
+                         f"expected this buffer's {buffer_id!r})")
+    for k, v in arrays.items():
+        if v.shape[:1] != (episodes,):
+            raise ValueError(f"buffer shard {path} holds {v.shape[0] if v.ndim else 0} episodes in {k!r}, "
+                             f"expected {episodes} (the manifest's episodes and shard_size)")
+    return arrays
 
 
 class EpisodeDataset(torch.utils.data.Dataset):
@@ -161,9 +248,20 @@ class EpisodeDataset(torch.utils.data.Dataset):
                 "actions": self.actions[e, t:t + self.window - 1]}
 
 
+# The code a buffer's episodes come from (rendering, physics, the recorder): the cache folder
+# is keyed by it, so an edit there collects a fresh buffer instead of serving the old one.
+BUFFER_CODE = ("envs", "data/buffer.py")
+
+
 def cached_buffer(episodes: int, env: str = "block-rearrange", num_objects: int = 4,
                   seed: int = 0) -> Path:
-    """A buffer in the cache folder, keyed by its config and the data format: collected on
-    first use, resumed if interrupted, reused afterwards."""
-    path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}"
+    """A buffer in the cache folder, keyed by its config, the data format and the code that
+    records it (BUFFER_CODE): collected on first use, resumed if interrupted, reused afterwards.
+
+    Checkpoints and graphs name their buffer by its manifest hash, which holds the config but
+    not this folder's name: one trained before a code change still fits the buffer collected
+    after it (`inference.obtain_dslate`, `train --resume`), so nothing retrains."""
+    from ..cache import code_digest
+
+    path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}-{code_digest(*BUFFER_CODE)}"
     return collect(path, episodes=episodes, env=env, num_objects=num_objects, seed=seed)

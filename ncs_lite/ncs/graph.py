@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..utils import atomic_torch_save, load_tensor_file
+from ..utils import atomic_torch_save, file_kind, load_tensor_file
 from .kmeans import assign, kmeans, pairwise_distances
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
@@ -84,8 +84,7 @@ def check_graph_file(sd: dict, path, kind: str, what: str) -> dict:
     kind tag (files from before the tag have none), the content digest when stored, finite
     centroids, a known bind metric, edges between existing nodes."""
     if sd.get("kind", kind) != kind or sd.get("format") != 1 or any(k not in sd for k in GRAPH_KEYS):
-        found = sd.get("kind") or ("a dSLATE checkpoint" if "model" in sd else f"keys {sorted(sd)[:6]}")
-        raise ValueError(f"{path} is not an ncs-lite {what} (kind {kind!r}, format 1); it holds {found}")
+        raise ValueError(f"{path} is not an ncs-lite {what} (kind {kind!r}, format 1); it holds {file_kind(sd)}")
     if "content_digest" in sd and content_digest(sd) != sd["content_digest"]:
         raise ValueError(f"{path} is corrupted: its content does not match the digest stored when it was saved")
     c, index = sd["centroids"], sd["edge_index"]
