@@ -249,8 +249,10 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     winning most of its true pixels (`slot_assignment`). Returns arrays:
       slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
       per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
-      states (n, Ds), positions (n, 2) true (x, y), colours (n,) colour ids; and
-      all_positions (E, T, k, 2), all_colours (E, k), colour_names (one per id).
+      states (n, Ds), positions (n, 2) true (x, y), colours (n,) colour ids, own_slot (n,)
+      bool (the slot is neither the floor's nor shared with another object); and
+      all_positions (E, T, k, 2), all_colours (E, k), colour_names (one per id),
+      background (E, T) the floor's slot.
     """
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
     E, T, k = true.shape[:3]
@@ -260,16 +262,18 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
         slots.append(r.slots.cpu().float())
         masks.append(r.masks.cpu().float())
     slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)
-    owner, _ = slot_assignment(masks.flatten(0, 1), true.reshape(E * T, *true.shape[2:]))
-    owner = owner.reshape(E, T, k)
+    owner, background = slot_assignment(masks.flatten(0, 1), true.reshape(E * T, *true.shape[2:]))
+    owner, background = owner.reshape(E, T, k), background.reshape(E, T)
     Dz = model.type_dim
     z, s = slots[..., :Dz].numpy(), slots[..., Dz:].numpy()
     pos = np.asarray(buffer["positions"])[..., :2]                     # (E, T, k, 2)
     colour, names = _colour_ids(buffer["colors"])                      # (E, k)
     e_idx, t_idx, o_idx = np.nonzero(owner >= 0)
     slot_of = owner[e_idx, t_idx, o_idx]
+    holders = (owner[e_idx, t_idx] == slot_of[:, None]).sum(1)        # objects in that slot
+    own = (slot_of != background[e_idx, t_idx]) & (holders == 1)
     return {"slots": slots, "masks": masks, "owner": owner, "z": z, "s": s,
-            "episode": e_idx, "frame": t_idx, "object": o_idx,
+            "episode": e_idx, "frame": t_idx, "object": o_idx, "own_slot": own, "background": background,
             "types": z[e_idx, t_idx, slot_of], "states": s[e_idx, t_idx, slot_of],
             "positions": pos[e_idx, t_idx, o_idx], "colours": colour[e_idx, o_idx],
             "all_positions": pos, "all_colours": colour, "colour_names": names}
@@ -292,6 +296,10 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
       identity_from_z      nearest-centroid accuracy of the object's colour from z (chance:
                            1 / colours)
       position_r2_from_s / _from_z   ridge R^2 of the object's (x, y) from s / from z
+      own_slot_share       share of the matched objects whose slot is their own (neither the
+                           floor's nor shared): what the segmentation leaves to the split
+      position_r2_own_slots   position_r2_from_s over those objects only (fitted and scored on
+                           them): the split's own quality, segmentation failures aside
       moved_slot_accuracy  how often the dynamics' largest predicted state change (L2) is on
                            the slot of the object the action moved (chance: 1 / slots; over
                            the transitions that moved an object)
@@ -316,7 +324,7 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     slots, owner, z = f["slots"], f["owner"], f["z"]
     pos, colour, colour_names = f["all_positions"], f["all_colours"], f["colour_names"]
     e_idx = f["episode"]
-    feats_z, feats_s, target = f["types"], f["states"], f["positions"]
+    feats_z, feats_s, target, own_slot = f["types"], f["states"], f["positions"], f["own_slot"]
     train = e_idx < E // 2
     test = ~train
 
@@ -363,6 +371,9 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
         "identity_chance": float(1.0 / len(classes)),
         "position_r2_from_s": ridge_probe(feats_s[train], target[train], feats_s[test], target[test]),
         "position_r2_from_z": ridge_probe(feats_z[train], target[train], feats_z[test], target[test]),
+        "own_slot_share": float(own_slot.mean()),
+        "position_r2_own_slots": ridge_probe(feats_s[train & own_slot], target[train & own_slot],
+                                             feats_s[test & own_slot], target[test & own_slot]),
         "moved_slot_accuracy": float(hits.mean()),
         "moved_slot_chance": float(1.0 / K),
         "predicted_position_r2": _r2(read_pos(pred_s), next_pos),

@@ -68,6 +68,7 @@ def test_ground_truth_slots_score_perfectly(buffer):
     assert r["identity_from_z"] == 1.0
     assert r["position_r2_from_s"] > 0.999
     assert r["position_r2_from_z"] < 0.2                       # colour says nothing of place
+    assert r["own_slot_share"] == 1.0 and r["position_r2_own_slots"] > 0.999
     assert r["moved_slot_accuracy"] == 1.0
     assert r["predicted_position_r2"] > 0.99 > r["no_change_position_r2"]
     assert r["dvae_floor_max"] == 0.0
@@ -80,6 +81,25 @@ def test_noise_states_and_a_random_dynamics_score_at_chance(buffer):
     assert r["position_r2_from_s"] < 0.2
     assert r["moved_slot_accuracy"] < 0.5                      # chance is 1/4
     assert r["identity_from_z"] == 1.0                         # the types are still the colours
+
+
+def test_objects_sharing_a_slot_leave_the_own_slot_score(buffer):
+    class Merged(GroundTruthModel):
+        """Objects 0 and 1 share slot 0 (slot 1 is empty): their state is a blend."""
+
+        def infer_video(self, videos, num_slots=None, restarts=1, seed=0):
+            r = super().infer_video(videos, num_slots, restarts, seed)
+            masks = r.masks.clone()
+            masks[:, :, 0] += masks[:, :, 1]
+            masks[:, :, 1] = 0
+            s = r.states.clone()
+            s[:, :, 0] = (s[:, :, 0] + s[:, :, 1]) / 2
+            slots = torch.cat([r.types, s], -1)
+            return SlotInference(slots, r.types, s, masks, masks.flatten(-2))
+
+    r = factorization_scores(Merged(buffer), buffer)
+    assert r["own_slot_share"] == pytest.approx(1 / 3)         # object 2 of 3
+    assert r["position_r2_own_slots"] > 0.999 > r["position_r2_from_s"]
 
 
 def test_ridge_probe_reads_a_linear_map_and_not_noise():
