@@ -28,7 +28,9 @@ What the loop guarantees:
   buffer (manifest hash) or training code (`training_code_version`), naming what differs;
   a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
   and loss log first, so the two never mix); a lock file (`<out>.lock`) makes two runs on
-  one `out` refuse each other. Each checkpoint records the commit (`provenance`: writing
+  one `out` refuse each other. `--extend` continues a *finished* run into a new file under a
+  schedule that only adds later phases (`EXTENDABLE`: the dynamics phase), recording the run
+  it extends in `lineage`. Each checkpoint records the commit (`provenance`: writing
   into `ncs_lite/assets/` from a dirty tree is refused), the `--set` overrides, and the
   buffer's path (relative to the repo) and manifest hash.
 """
@@ -38,6 +40,7 @@ import contextlib
 import csv
 import fcntl
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -48,8 +51,8 @@ from .config import DSlateConfig, config_diff, get_preset, to_dict
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
 from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
-                    package_versions, progress, provenance, relative_to_repo, seed_everything, source_hash,
-                    tensor_digest)
+                    package_versions, progress, provenance, relative_to_repo, seed_everything, sha256_file,
+                    source_hash, tensor_digest)
 
 __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
            "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",
@@ -233,8 +236,31 @@ def _resume_differences(ckpt: dict, cfg, precision: str, env: str, data_meta: di
     return diff + [f"{name}: {a!r} != {b!r}" for name, a, b in pairs if a != b]
 
 
+# Fields that act only on steps after the polish: a finished run may be extended by them
+# (`--extend`) without retraining what came before.
+EXTENDABLE = ("train.dynamics_steps", "train.dynamics_lr")
+
+
+def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict) -> list[str]:
+    """Why a finished checkpoint cannot be extended into this run: everything `--resume`
+    checks, except the EXTENDABLE fields and the training code (recorded in `lineage`)."""
+    from .config import from_dict
+
+    allowed = tuple(f"{f}:" for f in EXTENDABLE) + ("training code:",)
+    problems = [d for d in _resume_differences(ckpt, cfg, precision, env, data_meta) if not d.startswith(allowed)]
+    step, done = int(ckpt["step"]), from_dict(ckpt["config"]).train.total_steps()
+    if step < done:
+        problems.append(f"it stopped at step {step} of its {done}: --resume it first")
+    if step > cfg.train.polish_end():
+        problems.append(f"it is at step {step}, past this run's polish end ({cfg.train.polish_end()}): "
+                        "the changed fields would act on steps it has already taken")
+    elif cfg.train.total_steps() <= step:
+        problems.append(f"this run ends at step {cfg.train.total_steps()} and adds nothing to its {step}")
+    return problems
+
+
 def _save(path, model, opt, cfg, step, device, precision, env, data_meta, seconds, last,
-          version, overrides) -> None:
+          version, overrides, lineage=()) -> None:
     ckpt = {
         "kind": CHECKPOINT_KIND,
         "format": CHECKPOINT_FORMAT,
@@ -251,6 +277,7 @@ def _save(path, model, opt, cfg, step, device, precision, env, data_meta, second
         "model": model.state_dict(),
         "optimizer": opt.state_dict(),
         "rng": _rng_state(device),
+        "lineage": list(lineage),    # the finished runs this one extends (`--extend`), oldest first
     }
     atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, path)
 
@@ -259,7 +286,8 @@ def _save(path, model, opt, cfg, step, device, precision, env, data_meta, second
 def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume: bool = False,
           device=None, max_steps: int | None = None, env: str = "block-rearrange",
           precision: str | None = None, compile: bool = False, force: bool = False,
-          overrides: list[str] | tuple = (), allow_dirty: bool = False) -> Path:
+          overrides: list[str] | tuple = (), allow_dirty: bool = False,
+          extend: str | Path | None = None) -> Path:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
     Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
@@ -272,6 +300,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     `bench train`). The first steps pay the compilation; checkpoints are unchanged.
     `force` starts afresh over an existing run at `out_path`; `overrides` (the `--set`
     strings that made `cfg`) are recorded in the checkpoint.
+    `extend`: a finished checkpoint (another path) to continue into `out_path` under a schedule
+    that only adds steps after its last one (the EXTENDABLE fields, e.g. a dynamics phase);
+    its loss log is copied first, and the new checkpoint's `lineage` records the extended
+    file's step, hash, code version and the fields' old values.
     """
     from .data import EpisodeDataset, load_manifest, manifest_hash
 
@@ -296,11 +328,29 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
                  "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
     csv_path = out_path.with_suffix(".csv")
     version = code_version(out_path, allow_dirty)
+    lineage = []
     with run_lock(out_path):
+        if extend is not None:
+            if resume:
+                raise ValueError("--extend starts a new run from a finished one; it cannot --resume as well")
+            extend = Path(extend)
+            if extend.resolve() == out_path.resolve():
+                raise ValueError(f"--extend {extend} and --out are the same file; write the extended run "
+                                 "to another --out (the finished run is kept)")
+            ckpt = read_checkpoint(extend, map_location=device)
+            problems = _extend_problems(ckpt, cfg, precision, env, data_meta)
+            if problems:
+                raise ValueError(f"cannot extend {extend}: {'; '.join(problems)}")
+            old = ckpt["config"].get("train", {})
+            lineage = list(ckpt.get("lineage") or []) + [{
+                "path": relative_to_repo(extend), "sha256": sha256_file(extend), "step": int(ckpt["step"]),
+                "code_version": ckpt.get("code_version"),
+                "fields": {f: old.get(f.split(".")[1]) for f in EXTENDABLE}}]
         if resume:
             if not out_path.exists():
                 raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
             ckpt = read_checkpoint(out_path, map_location=device)
+            lineage = list(ckpt.get("lineage") or [])
             diff = _resume_differences(ckpt, cfg, precision, env, data_meta)
             if diff:
                 raise ValueError(f"cannot resume {out_path}: it differs from this run (checkpoint vs "
@@ -313,14 +363,18 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
                                  "--force to delete it and start afresh")
             for p in (out_path, csv_path):
                 p.unlink(missing_ok=True)
+        if extend is not None:          # the finished run's log, continued (cut at its step by _loop)
+            out_path.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(extend.with_suffix(".csv"), csv_path)
         dataset = EpisodeDataset(data_dir, window=cfg.train.window)
         order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
         return _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env,
-                     data_meta, version, overrides, stop, ckpt if resume else None)
+                     data_meta, version, overrides, stop, ckpt if (resume or extend is not None) else None,
+                     lineage)
 
 
 def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env, data_meta,
-          version, overrides, stop, ckpt) -> Path:
+          version, overrides, stop, ckpt, lineage=()) -> Path:
     seed_everything(cfg.train.seed)
     model = DSlate(cfg).to(device)
     forward = torch.compile(model) if compile else model          # same parameters
@@ -390,7 +444,7 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
             if step % cfg.train.checkpoint_every == 0 or step == stop:
                 csv_file.flush()
                 _save(out_path, model, opt, cfg, step, device, precision, env, data_meta, seconds,
-                      {k: round(v, 4) for k, v in vals.items()}, version, overrides)
+                      {k: round(v, 4) for k, v in vals.items()}, version, overrides, lineage)
                 last_saved = step
     finally:
         csv_file.close()
@@ -429,6 +483,9 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--data", required=True, help="buffer directory (from `collect`)")
     p.add_argument("--out", required=True, help="checkpoint path (.pt); the loss CSV goes beside it")
     p.add_argument("--resume", action="store_true", help="continue from --out")
+    p.add_argument("--extend", default=None, metavar="CHECKPOINT",
+                   help="continue a finished run (another file) into --out under a schedule that only adds "
+                        f"steps after its end ({', '.join(EXTENDABLE)}), e.g. the dynamics phase")
     p.add_argument("--steps", type=int, default=None,
                    help="stop at this global step (default: the preset's full schedule)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
@@ -470,7 +527,8 @@ def _main(args) -> None:
     t0 = time.perf_counter()
     path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
                  max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile,
-                 force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty)
+                 force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty,
+                 extend=args.extend)
     ckpt = read_checkpoint(path)
     print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
           f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "

@@ -104,6 +104,28 @@ def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_
         ci(dynamics_steps=-1).validate()
 
 
+def test_extend_adds_the_dynamics_phase_to_a_finished_run(buffer, tmp_path):
+    plain = ci(dynamics_steps=0)
+    done = train(plain, buffer, tmp_path / "plain.pt")
+    with pytest.raises(ValueError, match="the changed fields|adds nothing"):
+        train(plain, buffer, tmp_path / "same.pt", extend=done)
+    out = train(ci(), buffer, tmp_path / "ext.pt", extend=done)
+    a, b = torch.load(done, weights_only=True), torch.load(out, weights_only=True)
+    assert b["step"] == a["step"] + 2
+    changed = {k for k in a["model"] if not torch.equal(a["model"][k], b["model"][k])}
+    assert changed and all(k.startswith("dynamics.") for k in changed)
+    assert b["lineage"][0]["step"] == a["step"] and b["lineage"][0]["fields"]["train.dynamics_steps"] == 0
+    rows = list(csv.DictReader(open(tmp_path / "ext.csv")))
+    assert [int(r["step"]) for r in rows] == list(range(1, b["step"] + 1))   # the old log, continued
+    with pytest.raises(ValueError, match=r"cannot extend.*train.lr"):
+        train(ci(lr=2e-3), buffer, tmp_path / "other.pt", extend=done)
+    half = train(plain, buffer, tmp_path / "half.pt", max_steps=2)
+    with pytest.raises(ValueError, match="--resume it first"):
+        train(ci(), buffer, tmp_path / "h2.pt", extend=half)
+    with pytest.raises(ValueError, match="same file"):
+        train(ci(), buffer, done, extend=done)
+
+
 def test_nan_stops_and_keeps_last_good_checkpoint(buffer, tmp_path, monkeypatch):
     out = train(ci(), buffer, tmp_path / "m.pt", max_steps=2)
     before = out.read_bytes()
