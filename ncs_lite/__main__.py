@@ -22,7 +22,10 @@ def _collect(args):
 
 def _bench(args):
     from .bench import run
+    from .utils import check_out_file
 
+    if args.out is not None:
+        check_out_file(args.out, "JSON")          # before the benchmark, not after it
     print(json.dumps(run(args.name, args.out), indent=2))
 
 
@@ -41,7 +44,8 @@ def _graph(args):
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
 
     env = load_manifest(args.data)["env"]["env"]          # Tables 3-4 give each env's defaults
-    cfg = ncs_config(args.overrides, clusters=args.clusters or CLUSTERS_BY_ENV.get(env), seed=args.seed,
+    clusters = args.clusters if args.clusters is not None else CLUSTERS_BY_ENV.get(env)   # 0 is refused
+    cfg = ncs_config(args.overrides, clusters=clusters, seed=args.seed,
                      state=args.state or STATE_BY_ENV.get(env), edge_action=EDGE_ACTION_BY_ENV.get(env))
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
@@ -64,7 +68,8 @@ def _evaluate(args):
     from .baselines import MPC_PRESETS, SetGraph
     from .baselines.runs import load_trained_policy
     from .config import ncs_config, parse_override, section_config, split_overrides
-    from .evaluation import NEEDS, TaskSet, agent_factory, evaluate, summarize, write_csv
+    from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, evaluate, state_features,
+                             summarize, write_csv)
     from .inference import load_dslate, shipped_asset
     from .ncs.graph import TransitionGraph
     from .utils import check_out_file, provenance
@@ -73,13 +78,19 @@ def _evaluate(args):
         check_out_file(args.out, "CSV")         # before the episodes, not after them
     sections = split_overrides(args.overrides, ("ncs", "mpc"))
     needs = NEEDS.get(args.method, ())
+    # without a path, a method runs from the shipped `reduced` assets of --env
+    paths = {"graph": args.graph, "model": args.checkpoint, "policy": args.policy}
+    for need, path in paths.items():            # a file the method would not read is refused, not ignored
+        if path is not None and args.method in NEEDS and need not in needs:
+            reads = " and ".join(f"a {NEED_NAMES[n]}" for n in needs) or "no file"
+            raise ValueError(f"method {args.method!r} reads no {NEED_NAMES[need]}, got {path}; it reads {reads}")
+    if sections["mpc"] and args.method != "mpc":
+        raise ValueError(f"--set {sections['mpc'][0]}: mpc fields set MPC's planner; method {args.method!r} has none")
     asked = args.state or next((parse_override(o)[1] for o in sections["ncs"]
                                 if parse_override(o)[0] == "ncs.state"), None)
     from .ncs.graph import STATE_BY_ENV
 
     state = asked or STATE_BY_ENV.get(args.env, "mask")      # the shipped graph to default to
-    # without a path, a method runs from the shipped `reduced` assets of --env
-    paths = {"graph": args.graph, "model": args.checkpoint, "policy": args.policy}
     for need in needs:
         paths[need] = paths[need] or shipped_asset(args.env, args.method, need, state)
     graph = None
@@ -88,19 +99,33 @@ def _evaluate(args):
     # the agent reads the kind of state its graph was built on: unless --state (or
     # --set ncs.state) says otherwise, and then the graph must agree (checked below)
     cfg = ncs_config(sections["ncs"], state=args.state if asked or graph is None else graph.state)
-    if graph is not None:
-        try:
-            graph.check_state(cfg.state)
-        except ValueError as exc:
-            raise ValueError(f"--graph {paths['graph']}: {exc}") from None
     mpc = section_config(MPC_PRESETS[args.preset], "mpc", sections["mpc"]) if args.method == "mpc" else None
     if args.out:
         provenance(args.out, args.allow_dirty)
     model = load_dslate(paths["model"]) if "model" in needs else None
     policy = load_trained_policy(paths["policy"], args.method) if "policy" in needs else None
+    trained_on = {"--checkpoint": (paths["model"], model.checkpoint_info.get("env") if model else None),
+                  "--policy": (paths["policy"], policy.info.get("env") if policy else None)}
+    for flag, (path, env) in trained_on.items():     # the files record their env
+        if env is not None and env != args.env:
+            raise ValueError(f"{flag} {path} was trained on {env!r}, not --env {args.env!r}; evaluate it with "
+                             f"--env {env}, or pass a {flag[2:]} trained on {args.env}")
+    if graph is not None:       # the kind and the size of state its nodes are, which the agent reads
+        try:
+            graph.check_state(cfg.state, state_features(args.method, cfg.state, model))
+        except ValueError as exc:
+            raise ValueError(f"--graph {paths['graph']}: {exc}") from None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
                     action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
+    if graph is not None:
+        env = tasks.make_env()
+        try:
+            check_graph_actions(graph, env.action_space)
+        except ValueError as exc:
+            raise ValueError(f"--graph {paths['graph']}: {exc}") from None
+        finally:
+            env.close()
     rows = evaluate(agent_factory(args.method, graph=graph, model=model, seed=args.seed, ncs=cfg,
                                   policy=policy, mpc=mpc), tasks, args.method)
     if args.out:
@@ -174,7 +199,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (ValueError, OSError) as exc:      # bad input or file: one line, no traceback
+    except (ValueError, OSError, FloatingPointError) as exc:   # bad input or file, a diverged run: one line
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

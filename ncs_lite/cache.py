@@ -85,6 +85,8 @@ def buffer_digest(directory: str | Path) -> str:
         raise FileNotFoundError(f"no buffer at {directory} (missing manifest.json)")
     h = hashlib.sha256()
     for f in files:
+        if not f.is_file():              # a FIFO would block the read for ever
+            raise ValueError(f"{f} is not a regular file, expected a file of the buffer {directory}")
         h.update(f.name.encode())
         h.update(f.read_bytes())
     return h.hexdigest()[:16]

@@ -169,6 +169,24 @@ class DSlateConfig:
         return self.image_size // self.slots.encoder_stride if self.slots.encoder == "cnn" else self.grid
 
     def validate(self) -> "DSlateConfig":
+        _check_field_types(self)
+        for name, low in _AT_LEAST.items():         # sizes a model can be built and trained with
+            value = _field(self, name)
+            if value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        for name, (low, high, expected) in _IN_RANGE.items():
+            value = _field(self, name)
+            if not (low < value if high is None else low <= value < high):
+                raise ValueError(f"{name} must be {expected}, got {value!r}")
+        if self.action_dim != 6:
+            raise ValueError(f"action_dim must be 6 (the envs' action (w, dw)), got {self.action_dim}")
+        try:
+            norm = float(self.train.grad_clip_norm)
+        except ValueError:
+            norm = float("nan")
+        if not norm > 0:
+            raise ValueError("train.grad_clip_norm must be the order of a norm, a number > 0 or 'inf' "
+                             f"(clip_grad_norm_'s norm_type), got {self.train.grad_clip_norm!r}")
         if self.image_size % self.downsample:
             raise ValueError(f"image_size ({self.image_size}) must be divisible by downsample "
                              f"({self.downsample})")
@@ -228,6 +246,58 @@ class DSlateConfig:
         if not 2 <= self.train.window <= 5:
             raise ValueError(f"train.window must be in 2..5 (frames per video), got {self.train.window}")
         return self
+
+
+# Smallest values of the integer fields that size a model or a run (validate)
+_AT_LEAST = {
+    "image_size": 1, "downsample": 1, "dvae.vocab_size": 1, "dvae.hidden": 1, "dvae.tau_steps": 0,
+    "slots.num_slots": 1, "slots.iterations": 1, "slots.eval_iterations": 1, "slots.heads": 1,
+    "slots.type_dim": 1, "slots.state_dim": 1, "slots.mlp_hidden": 1, "slots.encoder_stride": 1,
+    "decoder.layers": 1, "decoder.heads": 1, "decoder.hidden": 1, "dynamics.layers": 1,
+    "dynamics.heads": 1, "dynamics.hidden": 1, "mixture.hidden": 1, "train.epochs": 1,
+    "train.episodes_per_epoch": 1, "train.batch_size": 1, "train.warmup_steps": 0,
+    "train.dvae_warmup_steps": 0, "train.checkpoint_every": 1, "train.seed": 0,
+}
+# float fields: (low, high, what is expected): low < value when high is None, else low <= value < high
+_IN_RANGE = {
+    "dvae.tau_start": (0.0, None, "> 0"), "dvae.tau_end": (0.0, None, "> 0"), "dvae.lr": (0.0, None, "> 0"),
+    "train.lr": (0.0, None, "> 0"), "train.grad_clip": (0.0, None, "> 0"),
+    "decoder.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.token_dropout": (0.0, 1.0, "in [0, 1)"),
+    "dynamics.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.slot_grad": (0.0, math.inf, ">= 0"),
+    "mixture.weight": (0.0, math.inf, ">= 0"),
+}
+
+
+def _field(cfg, dotted: str):
+    for part in dotted.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
+def _check_field_types(cfg, where: str = "") -> None:
+    """ValueError naming the field unless every field of the dataclass `cfg` (nested ones
+    too) has its annotated type: an int (not a bool), a finite float (an int is one), a str,
+    a bool. A config read from a file is otherwise used as it comes (`from_dict`)."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in fields(cfg):
+        value, name = getattr(cfg, f.name), where + f.name
+        if is_dataclass(value):
+            _check_field_types(value, name + ".")
+            continue
+        kind = hints.get(f.name)
+        if kind is bool:
+            ok, expected = isinstance(value, bool), "a bool"
+        elif kind is int:
+            ok, expected = isinstance(value, int) and not isinstance(value, bool), "an integer"
+        elif kind is float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            expected = "a finite number"
+        elif kind is str:
+            ok, expected = isinstance(value, str), "a string"
+        else:
+            continue
+        if not ok:
+            raise ValueError(f"{name} must be {expected}, got {value!r}")
 
 
 @dataclass

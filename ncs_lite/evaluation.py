@@ -149,6 +149,32 @@ def learned_perception(model, num_objects: int, ncs=None):
                             state=ncs.state)
 
 
+def state_features(method: str, state: str, model=None) -> int | None:
+    """How many numbers a state has that the graph agent `method` reads: a pooled mask
+    (STATE_GRID^2) or, for slot states, the oracle's position (3) or the model's state half
+    (its state_dim); None when that is not known (no model)."""
+    from .ncs.perception import STATE_GRID
+
+    if state == "mask":
+        return STATE_GRID ** 2
+    if method.endswith("oracle"):
+        return 3
+    return model.cfg.slots.state_dim if model is not None else None
+
+
+def check_graph_actions(graph, action_space) -> None:
+    """ValueError unless every edge action of `graph` (NCS's or NF's) lies in `action_space`:
+    a graph of another env, or a spoilt file without a digest, would be refused mid-episode."""
+    actions = np.asarray([a for labels in graph.edges.values() for a in labels], np.float32).reshape(-1, 6)
+    low, high = action_space.low, action_space.high
+    outside = (actions < low - 1e-6 * (high - low)) | (actions > high + 1e-6 * (high - low))
+    if outside.any():
+        bad = [round(float(v), 4) for v in actions[outside.any(1)][0]]
+        raise ValueError(f"{int(outside.any(1).sum())} of its {len(actions)} edge actions lie outside the env's "
+                         f"action space (low {low.tolist()}, high {high.tolist()}), e.g. {bad}: "
+                         "a graph of another env, or a spoilt file")
+
+
 def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, policy=None, mpc=None):
     """A function env -> agent for `method` (see METHODS and what each NEEDS).
 
@@ -192,7 +218,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     if not isinstance(graph, kind):
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
-    graph.check_state(ncs.state)
+    graph.check_state(ncs.state, state_features(method, ncs.state, model))
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed)
     return lambda env: agent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed)

@@ -62,7 +62,10 @@ def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
         cfg = from_dict(ckpt["config"])
     except (ValueError, TypeError) as e:
         raise ValueError(f"checkpoint {path} holds a config this code cannot use: {e}") from e
-    model = DSlate(cfg)
+    try:
+        model = DSlate(cfg)
+    except (ValueError, RuntimeError) as e:
+        raise ValueError(f"checkpoint {path} holds a config this code cannot build a dSLATE from: {e}") from None
     try:
         model.load_state_dict(ckpt["model"])
     except RuntimeError as e:

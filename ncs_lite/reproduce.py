@@ -337,7 +337,34 @@ TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselin
           "robogym": robogym_table}
 
 
+def check_table_args(name: str, args) -> None:
+    """ValueError naming the argument before any work (a table runs for minutes to hours)."""
+    from .comparison import EPISODES
+    from .inference import TRAIN_EPISODES
+    from .utils import check_out_dir
+
+    presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES}.get(name)
+    if presets is not None and args.preset not in presets:
+        raise ValueError(f"unknown preset {args.preset!r} for the {name} table; expected one of {', '.join(presets)}")
+    for flag, value in (("--episodes", args.episodes), ("--mpc-episodes", args.mpc_episodes)):
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} must be an integer >= 1, got {value}")
+    if any(s < 0 for s in args.seeds):
+        raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
+    if args.objects is not None:
+        from .envs.robogym_rearrange import RobogymRearrangeConfig
+
+        for k in args.objects:
+            try:
+                RobogymRearrangeConfig(num_objects=k)
+            except ValueError as exc:
+                raise ValueError(f"--objects {k}: {exc}") from None
+    if args.out_dir is not None:
+        check_out_dir(args.out_dir, "table", flag="--out-dir")
+
+
 def run_table(name: str, args) -> dict:
+    check_table_args(name, args)
     if name == "seeds":
         return seeds_table(args.preset, args.seeds, args.runs, args.overrides, args.episodes or 100,
                            out_dir=args.out_dir, allow_dirty=args.allow_dirty)

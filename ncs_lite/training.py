@@ -174,6 +174,9 @@ def read_checkpoint(path: str | Path, map_location="cpu") -> dict:
         raise ValueError(f"{path} was written by another version of the code: checkpoint format "
                          f"{ckpt.get('format')!r} / model {ckpt.get('model_version')!r}, this code "
                          f"expects format {CHECKPOINT_FORMAT} / model {MODEL_VERSION!r}; retrain it")
+    step = ckpt.get("step", 0)
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise ValueError(f"{path} is corrupted: its step must be an integer >= 0, got {step!r}")
     return check_weights(ckpt, path, DIGESTED)
 
 
@@ -306,6 +309,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     file's step, hash, code version and the fields' old values.
     """
     from .data import EpisodeDataset, load_manifest, manifest_hash
+    from .data.buffer import check_actions
 
     cfg.validate()
     out_path = check_out_file(out_path, "checkpoint")
@@ -324,6 +328,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     collected_on = (manifest.get("env") or {}).get("env", env)
     if collected_on != env:
         raise ValueError(f"the buffer {data_dir} was collected on {collected_on!r}, not --env {env!r}")
+    size = manifest["env"].get("image_size", cfg.image_size)
+    if size != cfg.image_size:
+        raise ValueError(f"the buffer {data_dir} holds {size}x{size} images, but the config's image_size is "
+                         f"{cfg.image_size}; train with --set image_size={size} or on another buffer")
     data_meta = {"dir": relative_to_repo(data_dir), "episodes": int(manifest["episodes"]),
                  "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
     csv_path = out_path.with_suffix(".csv")
@@ -350,6 +358,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             if not out_path.exists():
                 raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
             ckpt = read_checkpoint(out_path, map_location=device)
+            missing = [k for k in ("optimizer", "rng", "step", "seconds") if k not in ckpt]
+            if missing:
+                raise ValueError(f"cannot resume {out_path}: it lacks {missing}, which every checkpoint `train` "
+                                 "writes holds; use --force to start afresh")
             lineage = list(ckpt.get("lineage") or [])
             diff = _resume_differences(ckpt, cfg, precision, env, data_meta)
             if diff:
@@ -367,6 +379,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             out_path.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(extend.with_suffix(".csv"), csv_path)
         dataset = EpisodeDataset(data_dir, window=cfg.train.window)
+        check_actions(data_dir, dataset.actions.numpy())
         order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
         return _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env,
                      data_meta, version, overrides, stop, ckpt if (resume or extend is not None) else None,

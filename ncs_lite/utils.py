@@ -120,15 +120,25 @@ def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "", map_loc
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no {what} at {path}{'; ' + hint if hint else ''}")
-    if not path.is_file():
+    if path.is_dir():
         raise ValueError(f"{path} is a directory, expected a {what} file")
+    if not path.is_file():                  # a FIFO or a device: reading it could block for ever
+        raise ValueError(f"{path} is not a regular file, expected a {what} file")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is an empty file, expected a {what} file")
     try:
         obj = torch.load(path, weights_only=True, map_location=map_location)
     except Exception as e:  # noqa: BLE001 - truncated zips, foreign pickles, ... come in many types
-        raise ValueError(f"{path} is not a readable {what} ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
+        raise ValueError(f"{path} is not a readable {what} ({one_line(e)})") from None
     if not isinstance(obj, dict):
         raise ValueError(f"{path} is not a {what} (it holds a {type(obj).__name__}, expected a dict)")
     return obj
+
+
+def one_line(e: BaseException) -> str:
+    """`Type: first line of the message` of an exception, for a one-line error about a file."""
+    first = (str(e).splitlines() or [""])[0][:200]
+    return f"{type(e).__name__}: {first}" if first else type(e).__name__
 
 
 # The kind tag of each file type the kit writes, and what it is called in an error about a
@@ -162,6 +172,10 @@ def check_weights(sd: dict, path, keys: tuple[str, ...]) -> dict:
     are not all finite: a flipped byte or a NaN would otherwise load without complaint."""
     import torch
 
+    model = sd.get("model")
+    if not (isinstance(model, dict) and all(isinstance(t, torch.Tensor) for t in model.values())):
+        raise ValueError(f"{path} is corrupted: its 'model' must be a dict of tensors, got "
+                         f"{type(model).__name__}")
     if "content_digest" in sd and tensor_digest(sd, keys) != sd["content_digest"]:
         raise ValueError(f"{path} is corrupted: its weights do not match the digest stored when it was saved")
     bad = [k for k, t in sd["model"].items()
@@ -182,20 +196,20 @@ def check_out_file(path: str | os.PathLike, what: str) -> Path:
     return path
 
 
-def check_out_dir(path: str | os.PathLike, what: str) -> Path:
+def check_out_dir(path: str | os.PathLike, what: str, flag: str = "--out") -> Path:
     """ValueError naming `path` unless it is (or can be made) a `what` directory."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise ValueError(f"--out {path} is a file; expected a {what} directory")
-    _check_parents(path)
+        raise ValueError(f"{flag} {path} is a file; expected a {what} directory")
+    _check_parents(path, flag)
     return path
 
 
-def _check_parents(path: Path) -> None:
+def _check_parents(path: Path, flag: str = "--out") -> None:
     for parent in path.parents:
         if parent.exists():                       # the nearest folder that exists decides
             if not parent.is_dir():
-                raise ValueError(f"--out {path} lies below {parent}, which is a file, not a directory")
+                raise ValueError(f"{flag} {path} lies below {parent}, which is a file, not a directory")
             return
 
 

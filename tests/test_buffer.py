@@ -1,5 +1,6 @@
 """Experience buffer: round trip, determinism, resume, one object per transition."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -131,6 +132,17 @@ SHARD_SPOILS = {  # how shard 0 is spoilt: what the one-line error says
                                                               for k, v in a.items()}),
                       "holds 3 episodes in 'frames', expected 2"),
     "another buffer's": (lambda p, other: p.write_bytes((other / p.name).read_bytes()), "belongs to another buffer"),
+    # arrays that read but do not hold what the manifest says (these loaded, or failed in numpy)
+    "smaller images": (lambda p, other: _rewrite(p, lambda a: {**a, "frames": a["frames"][:, :, :32, :32]}),
+                       "holds 'frames' of shape (2, 5, 32, 32, 3) and dtype uint8, expected (episodes, 5, 64, 64, 3) "
+                       "of uint8"),
+    "float frames": (lambda p, other: _rewrite(p, lambda a: {**a, "frames": a["frames"].astype(np.float32)}),
+                     "holds 'frames' of shape (2, 5, 64, 64, 3) and dtype float32"),
+    "NaN actions": (lambda p, other: _rewrite(p, lambda a: {**a, "actions": np.full_like(a["actions"], np.nan)}),
+                    "holds non-finite values in 'actions'; expected finite ones"),
+    "a moved cube that is not there": (lambda p, other: _rewrite(p, lambda a: {**a, "moved": np.full_like(a["moved"], 17)}),
+                                       "holds 'moved' values in 17..17, expected -1..3"),
+    "a FIFO": (lambda p, other: (p.unlink(), os.mkfifo(p)), "is not a regular file, expected an .npz"),   # read: a hang
 }
 
 
@@ -179,11 +191,16 @@ def test_legacy_shards_load_and_a_broken_manifest_is_named(buffers, tmp_path, ca
              "[]": "is not a valid buffer manifest: it holds a JSON list, expected an object",
              json.dumps({**manifest, "episodes": "4"}): "episodes must be an integer >= 1, got '4'",
              json.dumps({k: v for k, v in manifest.items() if k != "shard_size"}): "shard_size must be an integer",
-             json.dumps({**manifest, "format": 0}): "format 0, this code reads format 1"}
+             json.dumps({**manifest, "format": 0}): "format 0, this code reads format 1",
+             None: "is not a regular file, expected a buffer manifest"}       # a FIFO: reading it hung
     for text, message in cases.items():
-        case = tmp_path / f"m{len(text)}"
+        case = tmp_path / f"m{len(text or '')}"
         shutil.copytree(good, case)
-        (case / "manifest.json").write_text(text)
+        if text is None:
+            (case / "manifest.json").unlink()
+            os.mkfifo(case / "manifest.json")
+        else:
+            (case / "manifest.json").write_text(text)
         path = str(case / "manifest.json")
         for args in (["collect", "--episodes", "4", "--seed", "5", "--shard-size", "2", "--out", str(case)],
                      ["train", "--preset", "ci", "--data", str(case), "--out", str(tmp_path / "m.pt")]):

@@ -82,9 +82,21 @@ def test_bad_actions_and_configs_are_refused_by_name():
                        (np.ones(6, complex), "dtype complex")):
         with pytest.raises(ValueError, match=match):
             env.step(bad)
+    for bad, match in (([[1, 2], [3]], r"action must be 6 numbers \(w, dw\), got \[\[1, 2\], \[3\]\]"),):
+        with pytest.raises(ValueError, match=match):          # ragged: numpy's own error named no action
+            env.step(bad)
+    for call, match in ((lambda: env.pick_and_move(9, 3), r"obj must be an integer in 0\.\.1, got 9"),
+                        (lambda: env.pick_and_move(0, 16), r"cell must be an integer in 0\.\.15, got 16")):
+        with pytest.raises(ValueError, match=match):
+            call()
     env.close()
-    with pytest.raises(ValueError, match="closed env"):
-        env.step(np.zeros(6, np.float32))
+    for call in (lambda: env.step(np.zeros(6, np.float32)), lambda: env.reset(seed=0)):
+        with pytest.raises(ValueError, match="closed env"):
+            call()
+    shown = make("block-rearrange", num_objects=2, render_mode="rgb_array")
+    with pytest.raises(ValueError, match=r"render\(\) before reset"):
+        shown.render()
+    shown.close()
     for kwargs, match in (({"horizon_multiplier": float("nan")}, "horizon_multiplier must be a finite"),
                           ({"horizon_multiplier": float("inf")}, "horizon_multiplier must be a finite"),
                           ({"num_objects": "4"}, "num_objects must be an integer"),

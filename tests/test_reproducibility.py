@@ -35,6 +35,19 @@ def test_override_sets_typed_values():
     ("slots.num_slots=2.5", r"expected a finite int"),
     ("train.lr", r"takes section.field=value"),
     ("train.precision=fp16", r"train.precision must be"),        # the config's own validation
+    # values that trained silently or failed deep inside torch (ZeroDivisionError, empty stacks)
+    ("slots.heads=0", r"slots.heads must be an integer >= 1, got 0"),
+    ("downsample=0", r"downsample must be an integer >= 1, got 0"),
+    ("train.batch_size=0", r"train.batch_size must be an integer >= 1, got 0"),
+    ("train.checkpoint_every=0", r"train.checkpoint_every must be an integer >= 1, got 0"),
+    ("train.epochs=-1", r"train.epochs must be an integer >= 1, got -1"),
+    ("dvae.vocab_size=0", r"dvae.vocab_size must be an integer >= 1, got 0"),
+    ("train.lr=-1", r"train.lr must be > 0, got -1.0"),
+    ("mixture.weight=-1", r"mixture.weight must be >= 0, got -1.0"),
+    ("decoder.dropout=1.5", r"decoder.dropout must be in \[0, 1\), got 1.5"),
+    ("decoder.token_dropout=2", r"decoder.token_dropout must be in \[0, 1\), got 2.0"),
+    ("train.grad_clip_norm=bogus", r"train.grad_clip_norm must be the order of a norm.*got 'bogus'"),
+    ("action_dim=3", r"action_dim must be 6 \(the envs' action \(w, dw\)\), got 3"),
 ])
 def test_override_errors_name_the_field(text, message):
     with pytest.raises(ValueError, match=message):
@@ -166,12 +179,17 @@ def test_atomic_writes_get_the_umask_mode_and_clear_stale_temporaries(tmp_path):
 
 
 def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
-    """A checkpoint passed as a graph, a truncated or corrupted graph, a directory, an
-    unknown env or device: exit 2 with a message naming the file or value."""
+    """A checkpoint passed as a graph, a truncated, empty or corrupted graph, a directory or a
+    FIFO, an unknown env or device, a file the method does not read or of another env, a
+    graph of another perception, arguments checked only after the work: exit 2 with one
+    line naming the file or value."""
+    import os
+
     from ncs_lite.__main__ import main
     from ncs_lite.data import cached_buffer
-    from ncs_lite.inference import SHIPPED_CHECKPOINT, SHIPPED_GRAPH
-    from ncs_lite.ncs.graph import TransitionGraph
+    from ncs_lite.inference import (ROBOGYM_POSITION_GRAPH, SHIPPED_CHECKPOINT, SHIPPED_GRAPH, SHIPPED_POLICIES,
+                                    SHIPPED_SLOT_GRAPH)
+    from ncs_lite.ncs.graph import TransitionGraph, content_digest
 
     graph = TransitionGraph.load(SHIPPED_GRAPH)
     graph.save(tmp_path / "g.pt")
@@ -182,11 +200,59 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
     torch.save(sd, tmp_path / "flipped.pt")
     cases = {str(SHIPPED_CHECKPOINT): "holds a dSLATE checkpoint", str(tmp_path / "half.pt"): "is not a readable",
              str(tmp_path / "flipped.pt"): "is corrupted", str(tmp_path): "is a directory"}
+    (tmp_path / "empty.pt").write_bytes(b"")
+    os.mkfifo(tmp_path / "fifo.pt")                             # reading it would hang
+    cases.update({str(tmp_path / "empty.pt"): "is an empty file, expected a transition graph file",
+                  str(tmp_path / "fifo.pt"): "is not a regular file, expected a transition graph file"})
+    spoilt = {  # file: (how a sound graph is changed, saved with a fresh digest; what the line says)
+        "nan-actions.pt": (lambda g: g["edge_action"].fill_(float("nan")), "edge actions must be finite"),
+        "negative-counts.pt": (lambda g: g["edge_count"].fill_(-3), "edge counts must be >= 1, got -3"),
+        "bogus-state.pt": (lambda g: g["info"].update(state="bogus"), "unknown state 'bogus'"),
+        "list-metric.pt": (lambda g: g.update(bind_metric=["cosine"]), "unknown bind metric ['cosine']"),
+        "list-actions.pt": (lambda g: g.update(edge_action=[[0.0] * 6]), "its edge_action is a list, expected a tensor"),
+        "float-index.pt": (lambda g: g.update(edge_index=g["edge_index"].float()), "its edge_index has dtype torch.float32"),
+    }
+    for name, (spoil, message) in spoilt.items():
+        sd = torch.load(tmp_path / "g.pt", weights_only=True)
+        spoil(sd)
+        torch.save({**sd, "content_digest": content_digest(sd)}, tmp_path / name)
+        cases[str(tmp_path / name)] = message
     for path, message in cases.items():
         assert main(["evaluate", "--method", "ncs-oracle", "--graph", path, "--episodes", "1"]) == 2
         err = capsys.readouterr().err
-        assert message in err and path in err and err.count("\n") == 1
+        assert message in err and path in err and err.count("\n") == 1, (path, err)
     buf = str(cached_buffer(16))
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    slot_graph, bc = str(SHIPPED_SLOT_GRAPH), str(SHIPPED_POLICIES["bc"])
+    commands = [  # arguments, what the one line says: each was a traceback, a silent default or a hang
+        (["evaluate", "--method", "ncs-oracle", "--graph", slot_graph, "--episodes", "1"],
+         f"--graph {slot_graph}: the graph's nodes are 'slot' states of 4 numbers but the perception reads states of 3"),
+        (["evaluate", "--method", "ncs-oracle", "--graph", str(ROBOGYM_POSITION_GRAPH), "--episodes", "1"],
+         f"--graph {ROBOGYM_POSITION_GRAPH}: 11439 of its 20000 edge actions lie outside the env's action space"),
+        (["graph-nf", "--oracle", "--bind-graph", slot_graph, "--data", buf, "--out", str(tmp_path / "nf.pt")],
+         f"--bind-graph {slot_graph}: the graph's nodes are 'slot' states of 4 numbers"),
+        (["evaluate", "--method", "random", "--checkpoint", str(SHIPPED_CHECKPOINT), "--episodes", "1"],
+         f"method 'random' reads no dSLATE checkpoint (--checkpoint), got {SHIPPED_CHECKPOINT}"),
+        (["evaluate", "--method", "random", "--set", "mpc.population=5", "--episodes", "1"],
+         "--set mpc.population=5: mpc fields set MPC's planner; method 'random' has none"),
+        (["evaluate", "--method", "bc", "--env", "robogym-rearrange", "--policy", bc, "--episodes", "1"],
+         f"--policy {bc} was trained on 'block-rearrange', not --env 'robogym-rearrange'"),
+        (["graph", "--oracle", "--clusters", "0", "--data", buf, "--out", str(tmp_path / "g0.pt")],
+         "ncs.clusters must be an integer >= 1, got 0"),
+        (["train", "--preset", "ci", "--set", "image_size=32", "--data", buf, "--out", str(tmp_path / "m.pt")],
+         f"the buffer {buf} holds 64x64 images, but the config's image_size is 32"),
+        (["train-baseline", "--method", "bc", "--preset", "ci", "--env", "robogym-rearrange", "--data", buf,
+          "--out", str(tmp_path / "bc.pt")], f"the buffer {buf} was collected on 'block-rearrange', not --env"),
+        (["reproduce", "seeds", "--preset", "bogus"], "unknown preset 'bogus' for the seeds table"),
+        (["reproduce", "seeds", "--preset", "ci", "--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        (["reproduce", "clusters", "--out-dir", str(afile)], f"--out-dir {afile} is a file; expected a table directory"),
+        (["bench", "envs", "--out", str(tmp_path)], f"--out {tmp_path} is a directory; expected the path of a JSON file"),
+    ]
+    for args, message in commands:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, (args, err)
     assert main(["train", "--preset", "ci", "--env", "bogus", "--data", buf, "--out", str(tmp_path / "m.pt")]) == 2
     assert "unknown environment 'bogus'" in capsys.readouterr().err
     assert main(["train", "--preset", "ci", "--device", "bogus", "--data", buf, "--out", str(tmp_path / "m.pt")]) == 2
@@ -230,8 +296,30 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     for p in model.parameters():
         p.data.fill_(float("nan"))
     bc_module.save_bc(tmp_path / "nan-bc.pt", model)      # digest of the NaNs it saved
+
+    def variant(src, name, change, digest=True):
+        """A copy of checkpoint `src` changed by `change(dict)`, with its digest stored anew (or dropped)."""
+        sd = torch.load(src, weights_only=True)
+        change(sd)
+        keys = training.DIGESTED if sd.get("kind") == "dslate" else goal_conditioned.DIGESTED
+        sd.pop("content_digest")
+        torch.save({**sd, "content_digest": u.tensor_digest(sd, keys)} if digest else sd, tmp_path / name)
+        return str(tmp_path / name)
+
     graph = str(SHIPPED_GRAPH)
     cases = [  # (flag, method, file, what the one line says)
+        # were tracebacks from deep inside (ZeroDivisionError, KeyError, AttributeError) or loaded silently
+        ("--checkpoint", "ncs", variant(dslate, "heads0.pt", lambda c: c["config"]["slots"].update(heads=0)),
+         "holds a config this code cannot use: slots.heads must be an integer >= 1, got 0"),
+        ("--checkpoint", "ncs", variant(dslate, "lr-str.pt", lambda c: c["config"]["train"].update(lr="fast")),
+         "holds a config this code cannot use: train.lr must be a finite number, got 'fast'"),
+        ("--checkpoint", "ncs", variant(dslate, "model-list.pt", lambda c: c.update(model=[1]), digest=False),
+         "is corrupted: its 'model' must be a dict of tensors, got list"),
+        ("--policy", "bc", variant(bc, "no-log.pt", lambda c: c.pop("log")), "is corrupted: it lacks ['log']"),
+        ("--policy", "bc", variant(bc, "no-box.pt", lambda c: c["model"].pop("box.low"), digest=False),
+         "holds a bc checkpoint this code cannot use: ValueError: its model lacks the action bounds"),
+        ("--policy", "bc", variant(bc, "box-inverted.pt", lambda c: c["model"].update({"box.low": c["model"]["box.high"] + 1})),
+         "holds a bc checkpoint this code cannot use: ValueError: action bounds need high > low"),
         ("--checkpoint", "ncs", _flip_a_weight_byte(dslate, tmp_path / "flip.pt"), "is corrupted"),
         ("--checkpoint", "ncs", str(tmp_path / "nan.pt"), "holds non-finite weights"),
         ("--checkpoint", "ncs", graph, "is not a dSLATE checkpoint (kind 'dslate' with 'model' and 'config'); "
@@ -249,6 +337,11 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
         assert main(["evaluate", "--method", method, flag, path, "--episodes", "1"]) == 2, path
         err = capsys.readouterr().err
         assert message in err and path in err and err.count("\n") == 1, (path, err)
+    resumed = tmp_path / "resumed.pt"                       # a checkpoint without its optimizer state
+    variant(dslate, "resumed.pt", lambda c: c.pop("optimizer"), digest=False)
+    assert main(["train", "--preset", "ci", "--data", str(buffer), "--out", str(resumed), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot resume {resumed}: it lacks ['optimizer']" in err and err.count("\n") == 1, err
     # files written before the kind tag and digest load unchanged
     assert "content_digest" not in torch.load(SHIPPED_CHECKPOINT, weights_only=True)
     assert load_dslate(SHIPPED_CHECKPOINT).checkpoint_info["step"] > 0

@@ -153,9 +153,18 @@ def test_step_before_reset_and_after_close():
     with pytest.raises(ValueError, match="before reset"):
         e.step(np.zeros(6, np.float32))
     e.reset(seed=0)
+    with pytest.raises(ValueError, match=r"obj must be an integer in 0\.\.0, got 3"):
+        e.pick_and_move(3, (0.0, 0.0))
+    with pytest.raises(ValueError, match=r"action must be 6 numbers \(w, dw\)"):
+        e.step([[0, 0], [0]])
     e.close()
-    with pytest.raises(ValueError, match="closed"):
-        e.step(np.zeros(6, np.float32))
+    for call in (lambda: e.step(np.zeros(6, np.float32)), lambda: e.reset(seed=0)):
+        with pytest.raises(ValueError, match="closed"):
+            call()
+    shown = make("robogym-rearrange", num_objects=1, render_mode="rgb_array")
+    with pytest.raises(ValueError, match=r"render\(\) before reset"):
+        shown.render()
+    shown.close()
 
 
 def test_a_render_failure_names_mujoco_gl_and_the_libraries(monkeypatch):

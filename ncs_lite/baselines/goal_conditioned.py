@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..utils import atomic_torch_save, check_weights, file_kind, load_tensor_file, tensor_digest
+from ..utils import atomic_torch_save, check_weights, file_kind, load_tensor_file, one_line, tensor_digest
 
 CHECKPOINT_FORMAT = 1
 KINDS = ("bc", "iql")                  # the kind tags of baseline checkpoints
@@ -232,6 +232,14 @@ def read_checkpoint(path, kind: str | None) -> dict:
                          f"{' or '.join(map(repr, KINDS))}); it holds {file_kind(ckpt)}")
     if kind is not None and ckpt["kind"] != kind:
         raise ValueError(f"{path} is a {ckpt['kind']!r} checkpoint, expected {kind!r}")
+    missing = [k for k in ("config", "step", "log", "info") if k not in ckpt]
+    if missing:
+        raise ValueError(f"{path} is corrupted: it lacks {missing}, which every {ckpt['kind']} checkpoint holds")
+    types = {"config": dict, "step": int, "log": list, "info": dict}
+    wrong = [k for k, t in types.items() if not isinstance(ckpt[k], t) or isinstance(ckpt[k], bool)]
+    if wrong:
+        raise ValueError(f"{path} is corrupted: its {wrong[0]} is a {type(ckpt[wrong[0]]).__name__}, expected "
+                         f"a {types[wrong[0]].__name__}")
     return check_weights(ckpt, path, DIGESTED)
 
 
@@ -301,10 +309,15 @@ def save_policy(path, kind: str, model: nn.Module, log: list[dict] | None = None
 def load_policy(path, kind: str, config_cls, model_cls) -> nn.Module:
     """A `model_cls(cfg, ActionBox)` from a `kind` checkpoint (weights_only), in eval mode."""
     ckpt = read_checkpoint(path, kind)
-    cfg = config_from_dict(config_cls, ckpt["config"])
     sd = ckpt["model"]
-    model = model_cls(cfg, ActionBox(sd["box.low"], sd["box.high"]))
-    model.load_state_dict(sd)
+    try:
+        cfg = config_from_dict(config_cls, ckpt["config"])
+        if "box.low" not in sd or "box.high" not in sd:
+            raise ValueError("its model lacks the action bounds box.low and box.high")
+        model = model_cls(cfg, ActionBox(sd["box.low"], sd["box.high"]))
+        model.load_state_dict(sd)
+    except (ValueError, TypeError, RuntimeError) as e:      # load_state_dict: RuntimeError
+        raise ValueError(f"{path} holds a {kind} checkpoint this code cannot use: {one_line(e)}") from None
     model.log, model.info, model.step = ckpt["log"], ckpt["info"], ckpt["step"]
     return model.eval()
 

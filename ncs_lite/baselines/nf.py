@@ -35,7 +35,8 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..ncs.graph import ACTION_DECIMALS, METRICS_BY_STATE, check_graph_file, content_digest, edge_tensors
+from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, check_features, check_graph_file, content_digest,
+                         edge_tensors)
 from ..ncs.kmeans import assign, kmeans
 from ..utils import atomic_torch_save, file_kind, load_tensor_file
 
@@ -73,12 +74,14 @@ class SetGraph:
         """The kind of entity state its scenes are sets of (Table 3: "mask" or "slot")."""
         return self.info.get("state", "mask")
 
-    def check_state(self, state: str) -> None:
-        """ValueError unless an agent reading `state` states can bind to this graph."""
+    def check_state(self, state: str, features: int | None = None) -> None:
+        """ValueError unless an agent reading `state` states (of `features` numbers, when
+        given) can bind to this graph."""
         if state != self.state:
             raise ValueError(f"the NF graph was built on {self.state!r} states but the agent would read "
                              f"{state!r} states: evaluate with --state {self.state} (ncs.state), or build "
                              f"it with `python -m ncs_lite graph-nf --state {state}`")
+        check_features(self, features, "graph-nf")
 
     @property
     def num_edges(self) -> int:
@@ -179,7 +182,12 @@ class SetGraph:
         if sd.get("kind") != GRAPH_KIND or "sets" not in sd:
             raise ValueError(f"{path} is not an ncs-lite NF graph (kind {GRAPH_KIND!r}); it holds {file_kind(sd)}")
         check_graph_file(sd, path, GRAPH_KIND, "NF graph")
+        c, ids = sd["centroids"].shape[0], sd["sets"]
+        if ids.ndim != 2 or (ids.numel() and not -1 <= int(ids.min()) <= int(ids.max()) < c):
+            raise ValueError(f"{path}: scene nodes must be rows of entity node ids 0..{c - 1} (-1 = none)")
         sets = [tuple(v for v in row if v >= 0) for row in sd["sets"].tolist()]
+        if len(set(sets)) != len(sets):
+            raise ValueError(f"{path}: its scene nodes must be distinct, got duplicates")
         graph = cls(sd["centroids"], sd["bind_metric"], sets, {}, sd["info"])
         for (s, d), a, n in zip(sd["edge_index"].tolist(), sd["edge_action"].tolist(), sd["edge_count"].tolist()):
             graph.edges.setdefault((s, d), Counter())[tuple(round(v, ACTION_DECIMALS) for v in a)] += n
@@ -220,7 +228,7 @@ def set_graph_from_transitions(transitions, graph=None, *, clusters: int = 30, s
     actions = np.asarray(transitions[2], np.float32).reshape(-1, 6)
     if graph is not None:
         if hasattr(graph, "check_state"):
-            graph.check_state(state)
+            graph.check_state(state, features=states_t.shape[-1])
         centroids, metric, source = graph.centroids, graph.bind_metric, "ncs graph"
     else:
         metrics = METRICS_BY_STATE[state]

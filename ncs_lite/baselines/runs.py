@@ -55,7 +55,7 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
     """Train BC or IQL (`cfg`) on the buffer directory `data` into the checkpoint `out`.
     Returns (model, log)."""
     from ..cache import code_digest
-    from ..data import load_buffer, manifest_hash
+    from ..data import load_buffer, load_manifest, manifest_hash
     from ..envs import make
     from ..utils import check_out_file, provenance, relative_to_repo
 
@@ -69,6 +69,9 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
         action_space = env_obj.action_space
     finally:
         env_obj.close()
+    collected_on = load_manifest(data)["env"].get("env", env)
+    if collected_on != env:
+        raise ValueError(f"the buffer {data} was collected on {collected_on!r}, not --env {env!r}")
     info = {"env": env, "data": relative_to_repo(data), "manifest_sha256": manifest_hash(data),
             "overrides": list(overrides), "code": code_digest(*POLICY_CODE), **made}
     if out.exists() and not (resume or force):
@@ -162,7 +165,12 @@ def _graph_nf(args) -> None:
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
                                    restarts=cfg.restarts, state=cfg.state))
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
-    graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)
+    try:
+        graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)
+    except ValueError as exc:
+        if bind is None:
+            raise
+        raise ValueError(f"--bind-graph {args.bind_graph}: {exc}") from None
     graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       bind_graph=relative_to_repo(args.bind_graph) if args.bind_graph else None,

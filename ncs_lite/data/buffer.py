@@ -42,7 +42,7 @@ def _manifest(env: str, episodes: int, num_objects: int, seed: int, shard_size: 
 
 
 def _check(name: str, value: int, low: int = 1) -> int:
-    if not isinstance(value, (int, np.integer)) or value < low:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)
 
@@ -87,7 +87,7 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
         shard = out / f"shard-{s:05d}.npz"
         if shard.exists():
             try:                        # a shard that a crash, a disk or a copy spoilt is made again
-                _read_shard(shard, _shard_len(s, episodes, shard_size), buffer_id)
+                _read_shard(shard, _shard_len(s, episodes, shard_size), buffer_id, shard_spec(manifest))
                 continue
             except ValueError as e:
                 print(f"collect: collecting {shard.name} again: {e}")
@@ -121,6 +121,8 @@ def load_manifest(directory: str | Path) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"no buffer at {directory} (missing manifest.json); "
                                 "create one with `python -m ncs_lite collect`")
+    if not path.is_file() and not path.is_dir():   # a FIFO: reading it would block for ever
+        raise ValueError(f"{path} is not a regular file, expected a buffer manifest (JSON)")
     try:
         m = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as e:     # JSONDecodeError is a ValueError
@@ -172,7 +174,7 @@ def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
     for s in range(n_shards):
         try:
             arrays = _read_shard(directory / f"shard-{s:05d}.npz", _shard_len(s, m["episodes"], m["shard_size"]),
-                                 buffer_id)
+                                 buffer_id, shard_spec(m))
         except ValueError as e:
             raise ValueError(f"{e}; rerun the same `collect` command to collect it again") from None
         for k in ARRAYS:
@@ -189,10 +191,43 @@ def _why(e: Exception) -> str:
     return f"{type(e).__name__}: {(str(e).splitlines() or [''])[0][:200]}"     # one line
 
 
-def _read_shard(path: Path, episodes: int, buffer_id: str) -> dict[str, np.ndarray]:
+def shard_spec(manifest: dict) -> dict[str, tuple]:
+    """What each array of a shard holds per episode, from the manifest: (shape after the
+    episode axis, None where the manifest does not say; dtype kinds; finite?). T frames,
+    k objects, S x S images."""
+    env = manifest.get("env") or {}
+    t, k, s = (v if isinstance(v, int) and not isinstance(v, bool) else None
+               for v in (manifest.get("frames", FRAMES), env.get("num_objects"), env.get("image_size")))
+    return {"frames": ((t, s, s, 3), "u", False), "actions": ((t and t - 1, 6), "f", True),
+            "positions": ((t, k, 3), "f", True), "masks": ((t, k, s, s), "b", False),
+            "colors": ((k, 3), "f", True), "moved": ((t and t - 1,), "iu", False)}
+
+
+def _check_arrays(path: Path, arrays: dict, spec: dict) -> None:
+    """ValueError naming `path` when an array's shape, dtype or values are not what `spec` says."""
+    for name, (shape, kinds, finite) in spec.items():
+        v = arrays[name]
+        fits = v.ndim == len(shape) + 1 and all(e is None or e == d for e, d in zip(shape, v.shape[1:]))
+        if not fits or v.dtype.kind not in kinds or (name == "frames" and v.dtype != np.uint8):
+            want = ", ".join("?" if e is None else str(e) for e in shape)
+            dtype = {"u": "uint8", "f": "float", "b": "bool", "iu": "integer"}[kinds]
+            raise ValueError(f"buffer shard {path} holds {name!r} of shape {v.shape} and dtype {v.dtype}, "
+                             f"expected (episodes, {want}) of {dtype} (the manifest's env)")
+        if finite and not np.isfinite(v).all():
+            raise ValueError(f"buffer shard {path} holds non-finite values in {name!r}; expected finite ones")
+    moved, k = arrays["moved"], spec["colors"][0][0]
+    if k is not None and moved.size and (moved.min() < -1 or moved.max() >= k):
+        raise ValueError(f"buffer shard {path} holds 'moved' values in {moved.min()}..{moved.max()}, expected "
+                         f"-1..{k - 1} (the moved object of each step, -1 for none)")
+
+
+def _read_shard(path: Path, episodes: int, buffer_id: str, spec: dict | None = None) -> dict[str, np.ndarray]:
     """The ARRAYS of one shard. ValueError naming `path` and what was expected when it is not
     a readable npz, lacks an array, holds another number of episodes than the manifest says,
-    or records another buffer's manifest hash."""
+    records another buffer's manifest hash, or (given `spec`, `shard_spec(manifest)`) holds
+    an array of another shape or dtype, non-finite numbers, or moved objects that do not exist."""
+    if path.exists() and not path.is_file() and not path.is_dir():    # a FIFO would block
+        raise ValueError(f"buffer shard {path} is not a regular file, expected an .npz")
     try:
         with open(path, "rb") as f:
             head = f.read(4)
@@ -218,7 +253,25 @@ def _read_shard(path: Path, episodes: int, buffer_id: str) -> dict[str, np.ndarr
         if v.shape[:1] != (episodes,):
             raise ValueError(f"buffer shard {path} holds {v.shape[0] if v.ndim else 0} episodes in {k!r}, "
                              f"expected {episodes} (the manifest's episodes and shard_size)")
+    if spec is not None:
+        _check_arrays(path, arrays, spec)
     return arrays
+
+
+def check_actions(directory: str | Path, actions: np.ndarray) -> None:
+    """ValueError naming the buffer unless its actions (..., 6) lie in the action space of
+    the env its manifest describes (a shard can hold any numbers; `load_buffer` reads no env)."""
+    config = dict(load_manifest(directory)["env"])
+    try:
+        env = make(config.pop("env", None), **config)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"buffer {directory}: its manifest's env config builds no env of this code ({e})") from None
+    low, high = env.action_space.low, env.action_space.high
+    env.close()
+    slack = 1e-6 * (high - low)
+    if np.any(actions < low - slack) or np.any(actions > high + slack):
+        raise ValueError(f"buffer {directory} holds actions outside its env's action space (low {low.tolist()}, "
+                         f"high {high.tolist()}); expected the actions `collect` records")
 
 
 class EpisodeDataset(torch.utils.data.Dataset):

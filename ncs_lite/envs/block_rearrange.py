@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from gymnasium import spaces
 
-from .common import RearrangeEnv, check_integer, check_number, check_task, constrained_count, horizon
+from .common import RearrangeEnv, check_index, check_integer, check_number, check_task, constrained_count, horizon
 
 
 def _import_pybullet_quietly():
@@ -189,6 +189,7 @@ class BlockRearrange(RearrangeEnv):
 
     # ------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._check_open("reset")
         super().reset(seed=seed)
         cfg, rng = self.config, self.np_random
         k, m = cfg.num_objects, cfg.constrained
@@ -263,6 +264,8 @@ class BlockRearrange(RearrangeEnv):
 
     def pick_and_move(self, obj: int, cell: int) -> np.ndarray:
         """The action that moves cube `obj` to grid cell `cell` (no noise): (w, dw)."""
+        obj = check_index("obj", obj, self.config.num_objects)
+        cell = check_index("cell", cell, len(self.cells))
         w = self.cells[self._cell_of[obj]]
         dw = self.cells[cell] - w
         h = self.config.cube / 2

@@ -56,7 +56,10 @@ def check_action(action, action_space, *, closed: bool, reset: bool) -> np.ndarr
         raise ValueError("step() on a closed env; make a new one")
     if not reset:
         raise ValueError("step() before reset(): call env.reset(seed=...) first")
-    raw = np.asarray(action)
+    try:
+        raw = np.asarray(action)
+    except (ValueError, TypeError):        # ragged nesting: [[1, 2], [3]]
+        raise ValueError(f"action must be 6 numbers (w, dw), got {action!r}") from None
     if raw.dtype.kind not in "fiu":        # bool, complex, strings, objects
         raise ValueError(f"action must be 6 numbers (w, dw) of a real dtype, got dtype {raw.dtype}: {action!r}")
     a = raw.astype(np.float32)
@@ -72,6 +75,13 @@ def check_action(action, action_space, *, closed: bool, reset: bool) -> np.ndarr
     return a
 
 
+def check_index(name: str, value, n: int) -> int:
+    """`value` as an index in 0..n-1, or a ValueError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < n:
+        raise ValueError(f"{name} must be an integer in 0..{n - 1}, got {value!r}")
+    return int(value)
+
+
 def horizon(cfg, min_steps: int) -> int:
     """ceil(horizon_multiplier x minimum steps), at least 1."""
     return max(1, int(np.ceil(cfg.horizon_multiplier * min_steps)))
@@ -83,6 +93,10 @@ class RearrangeEnv(gym.Env):
     `_apply(action) -> moved object or -1`, `_after_move()` and `_observe(moved)`."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def _check_open(self, call: str) -> None:
+        if self._closed():
+            raise ValueError(f"{call}() on a closed env; make a new one")
 
     def step(self, action):
         action = check_action(action, self.action_space, closed=self._closed(), reset=self._image is not None)
@@ -98,7 +112,11 @@ class RearrangeEnv(gym.Env):
         return obs, float(terminated), terminated, truncated, info
 
     def render(self):
-        return self._image.copy() if self.render_mode == "rgb_array" else None
+        if self.render_mode != "rgb_array":
+            return None
+        if self._image is None:
+            raise ValueError("render() before reset(): call env.reset(seed=...) first")
+        return self._image.copy()
 
     def __del__(self):          # an env dropped without close() must free what it holds
         try:

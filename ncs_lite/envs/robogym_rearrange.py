@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from gymnasium import spaces
 
-from .common import RearrangeEnv, check_integer, check_number, check_task, constrained_count, horizon
+from .common import RearrangeEnv, check_index, check_integer, check_number, check_task, constrained_count, horizon
 from .objects import COLOURS, OBJECTS, load_mesh
 
 GL_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
@@ -272,6 +272,7 @@ class RobogymRearrange(RearrangeEnv):
 
     # ------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._check_open("reset")
         super().reset(seed=seed)
         cfg, rng = self.config, self.np_random
         k, m = cfg.num_objects, cfg.constrained
@@ -386,6 +387,7 @@ class RobogymRearrange(RearrangeEnv):
     # ------------------------------------------------------- for data + tests
     def pick_and_move(self, obj: int, xy) -> np.ndarray:
         """The action that moves object `obj` to table position xy (no noise): (w, dw)."""
+        obj = check_index("obj", obj, self.config.num_objects)
         w = self.positions()[obj]
         dw = np.asarray(xy, np.float32) - w[:2]
         wz = np.clip(w[2], 0.0, float(self.action_space.high[2]))

@@ -87,19 +87,47 @@ def check_graph_file(sd: dict, path, kind: str, what: str) -> dict:
         raise ValueError(f"{path} is not an ncs-lite {what} (kind {kind!r}, format 1); it holds {file_kind(sd)}")
     if "content_digest" in sd and content_digest(sd) != sd["content_digest"]:
         raise ValueError(f"{path} is corrupted: its content does not match the digest stored when it was saved")
+    tensors = ["centroids", "edge_index", "edge_action", "edge_count"] + ["sets"] * ("sets" in sd) \
+        + ["edge_before", "edge_after"] * ("edge_before" in sd)
+    for key in tensors:
+        if not isinstance(sd.get(key), torch.Tensor):
+            raise ValueError(f"{path} is corrupted: its {key} is a {type(sd.get(key)).__name__}, expected a tensor")
+    for key in ("edge_index", "edge_count", "sets"):
+        if key in sd and (sd[key].is_floating_point() or sd[key].is_complex()):
+            raise ValueError(f"{path} is corrupted: its {key} has dtype {sd[key].dtype}, expected integers")
+    if not isinstance(sd["info"], dict):
+        raise ValueError(f"{path} is corrupted: its info is a {type(sd['info']).__name__}, expected a dict")
+    if sd["info"].get("state", "mask") not in METRICS_BY_STATE:
+        raise ValueError(f"{path}: unknown state {sd['info'].get('state')!r}; expected one of {sorted(METRICS_BY_STATE)}")
     c, index = sd["centroids"], sd["edge_index"]
-    if not (isinstance(c, torch.Tensor) and c.ndim == 2 and c.shape[0] > 0 and bool(torch.isfinite(c).all())):
-        raise ValueError(f"{path}: centroids must be a finite (N, D) tensor with N >= 1")
-    if sd["bind_metric"] not in BIND_METRICS:
+    if not (c.is_floating_point() and c.ndim == 2 and c.shape[0] > 0 and bool(torch.isfinite(c).all())):
+        raise ValueError(f"{path}: centroids must be a finite (N, D) float tensor with N >= 1")
+    if not isinstance(sd["bind_metric"], str) or sd["bind_metric"] not in BIND_METRICS:
         raise ValueError(f"{path}: unknown bind metric {sd['bind_metric']!r}; expected one of {sorted(BIND_METRICS)}")
     nodes = len(sd["sets"]) if "sets" in sd else c.shape[0]
     if index.ndim != 2 or index.shape[1] != 2 or (index.numel() and (index.min() < 0 or index.max() >= nodes)):
         raise ValueError(f"{path}: edges must join nodes 0..{nodes - 1}")
     if not (sd["edge_action"].shape == (index.shape[0], 6) and sd["edge_count"].shape == (index.shape[0],)):
         raise ValueError(f"{path}: every edge needs one action (6,) and one count")
+    if not bool(torch.isfinite(sd["edge_action"]).all()):
+        raise ValueError(f"{path}: edge actions must be finite, got non-finite ones")
+    if sd["edge_count"].numel() and int(sd["edge_count"].min()) < 1:
+        raise ValueError(f"{path}: edge counts must be >= 1, got {int(sd['edge_count'].min())}")
     if "edge_before" in sd and not (sd["edge_before"].shape == sd["edge_after"].shape == (index.shape[0], c.shape[1])):
         raise ValueError(f"{path}: every edge action needs its start and end states ({c.shape[1]} features each)")
     return sd
+
+
+def check_features(graph, features: int | None, command: str) -> None:
+    """ValueError unless the graph's nodes are states of `features` numbers (None: unchecked),
+    those of the perception that will read scenes: a graph built from the oracle's positions
+    (3) cannot bind a model's slot states (its state_dim), nor the other way round."""
+    width = int(graph.centroids.shape[1])
+    if features is not None and int(features) != width:
+        raise ValueError(f"the graph's nodes are {graph.state!r} states of {width} numbers but the perception "
+                         f"reads states of {int(features)}: it was built with another perception (the oracle's "
+                         f"or another model's); build it with `python -m ncs_lite {command}` and the same "
+                         "--checkpoint (or --oracle)")
 
 
 def edge_tensors(edges: dict, examples: dict | None = None) -> dict:
@@ -150,13 +178,15 @@ class TransitionGraph:
         written before `build_graph` recorded it were all built on masks."""
         return self.info.get("state", "mask")
 
-    def check_state(self, state: str) -> None:
-        """ValueError unless an agent reading `state` states can act on this graph: its nodes
-        are centroids of one kind of state, bound with that kind's metric."""
+    def check_state(self, state: str, features: int | None = None) -> None:
+        """ValueError unless an agent reading `state` states (of `features` numbers, when
+        given) can act on this graph: its nodes are centroids of one kind of state, bound
+        with that kind's metric, read by the same kind of perception."""
         if state != self.state:
             raise ValueError(f"the graph was built on {self.state!r} states but the agent would read "
                              f"{state!r} states: evaluate with --state {self.state} (ncs.state), or "
                              f"build the graph with `python -m ncs_lite graph --state {state}`")
+        check_features(self, features, "graph")
 
     def bind(self, states: torch.Tensor) -> torch.Tensor:
         """Node of each state (..., D) -> (...) int64, nearest centroid under `bind_metric`."""
