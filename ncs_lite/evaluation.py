@@ -159,7 +159,7 @@ def state_features(method: str, state: str, model=None) -> int | None:
         return STATE_GRID ** 2
     if method.endswith("oracle"):
         return 3
-    return model.cfg.slots.state_dim if model is not None else None
+    return getattr(model, "state_dim", None)      # None: no model, or a stand-in that does not say
 
 
 def check_graph_actions(graph, action_space) -> None:

@@ -343,7 +343,11 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"cannot resume {resumed}: it lacks ['optimizer']" in err and err.count("\n") == 1, err
     # files written before the kind tag and digest load unchanged
-    assert "content_digest" not in torch.load(SHIPPED_CHECKPOINT, weights_only=True)
+    from ncs_lite.inference import ROBOGYM_CHECKPOINT
+
+    assert "content_digest" not in torch.load(ROBOGYM_CHECKPOINT, weights_only=True)
+    assert load_dslate(ROBOGYM_CHECKPOINT).checkpoint_info["step"] > 0
+    assert "content_digest" in torch.load(SHIPPED_CHECKPOINT, weights_only=True)   # written by --extend
     assert load_dslate(SHIPPED_CHECKPOINT).checkpoint_info["step"] > 0
     for method, path in SHIPPED_POLICIES.items():
         assert load_trained_policy(path, method).step > 0
