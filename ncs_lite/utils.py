@@ -83,6 +83,21 @@ def _umask() -> int:
     return mask
 
 
+def _writer_gone(tmp: Path, name: str) -> bool:
+    """Whether the process that made the temporary file `tmp` of `name` has ended (False when
+    its name holds no pid: files from before the pid was written)."""
+    pid = tmp.name[len(name) + 2:].split(".", 1)[0]
+    if not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)           # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return True
+    except (PermissionError, OverflowError):
+        pass                           # alive under another user; not a pid
+    return False
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path in the target's folder; rename it over `path` on success.
@@ -90,17 +105,18 @@ def atomic_path(path: str | os.PathLike):
     os.replace is atomic on POSIX, so readers see either the old file or the new one. The
     file gets the mode a plain `open` would give (0666 less the umask; mkstemp's is 0600,
     which a shared class folder could not read). Temporary files of `path` that a killed
-    write left behind (older than STALE_TMP_SECONDS) are removed.
+    write left behind are removed: those whose writer (its pid is in the name) has ended, and
+    any older than STALE_TMP_SECONDS (a reused pid, another host).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
         try:
-            if time.time() - old.stat().st_mtime > STALE_TMP_SECONDS:
+            if _writer_gone(old, path.name) or time.time() - old.stat().st_mtime > STALE_TMP_SECONDS:
                 old.unlink()
         except OSError:
             pass                       # another process removed or renamed it
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)

@@ -176,6 +176,13 @@ def test_atomic_writes_get_the_umask_mode_and_clear_stale_temporaries(tmp_path):
         os.umask(old)
     assert (tmp_path / "x.txt").stat().st_mode & 0o777 == 0o644      # not mkstemp's 0600
     assert not stale.exists() and fresh.exists()                     # a recent one may be a live write
+    # a temporary whose writer has ended is removed at once; a live writer's is kept
+    dead, live = tmp_path / f".x.txt.{2 ** 22 + 1}.abc.tmp", tmp_path / f".x.txt.{os.getpid()}.def.tmp"
+    for f in (dead, live):
+        f.write_text("half written")
+    atomic_write_text(tmp_path / "x.txt", "again")
+    assert not dead.exists() and live.exists()
+    assert not [f for f in tmp_path.glob(".x.txt.*.tmp") if f not in (fresh, live)]
 
 
 def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
