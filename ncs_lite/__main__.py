@@ -110,17 +110,13 @@ def _evaluate(args):
         if env is not None and env != args.env:
             raise ValueError(f"{flag} {path} was trained on {env!r}, not --env {args.env!r}; evaluate it with "
                              f"--env {env}, or pass a {flag[2:]} trained on {args.env}")
-    if graph is not None:       # the kind and the size of state its nodes are, which the agent reads
-        try:
-            graph.check_state(cfg.state, state_features(args.method, cfg.state, model))
-        except ValueError as exc:
-            raise ValueError(f"--graph {paths['graph']}: {exc}") from None
     tasks = TaskSet(env=args.env, num_objects=args.num_objects, goal=args.goal,
                     num_constrained=args.num_constrained, horizon_multiplier=args.horizon_multiplier,
                     action_noise=args.action_noise, episodes=args.episodes, seed=args.seed)
-    if graph is not None:
+    if graph is not None:       # the kind and size of state its nodes are, and its actions fit the env
         env = tasks.make_env()
         try:
+            graph.check_state(cfg.state, state_features(args.method, cfg.state, model))
             check_graph_actions(graph, env.action_space)
         except ValueError as exc:
             raise ValueError(f"--graph {paths['graph']}: {exc}") from None

@@ -165,14 +165,15 @@ def state_features(method: str, state: str, model=None) -> int | None:
 def check_graph_actions(graph, action_space) -> None:
     """ValueError unless every edge action of `graph` (NCS's or NF's) lies in `action_space`:
     a graph of another env, or a spoilt file without a digest, would be refused mid-episode."""
+    from .envs.common import outside_action_space
+
     actions = np.asarray([a for labels in graph.edges.values() for a in labels], np.float32).reshape(-1, 6)
-    low, high = action_space.low, action_space.high
-    outside = (actions < low - 1e-6 * (high - low)) | (actions > high + 1e-6 * (high - low))
+    outside = outside_action_space(actions, action_space)
     if outside.any():
-        bad = [round(float(v), 4) for v in actions[outside.any(1)][0]]
-        raise ValueError(f"{int(outside.any(1).sum())} of its {len(actions)} edge actions lie outside the env's "
-                         f"action space (low {low.tolist()}, high {high.tolist()}), e.g. {bad}: "
-                         "a graph of another env, or a spoilt file")
+        bad = [round(float(v), 4) for v in actions[outside][0]]
+        raise ValueError(f"{int(outside.sum())} of its {len(actions)} edge actions lie outside the env's "
+                         f"action space (low {action_space.low.tolist()}, high {action_space.high.tolist()}), "
+                         f"e.g. {bad}: a graph of another env, or a spoilt file")
 
 
 def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, policy=None, mpc=None):

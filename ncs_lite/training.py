@@ -239,6 +239,14 @@ def _resume_differences(ckpt: dict, cfg, precision: str, env: str, data_meta: di
     return diff + [f"{name}: {a!r} != {b!r}" for name, a, b in pairs if a != b]
 
 
+def _check_continuable(ckpt: dict, what: str) -> None:
+    """ValueError (`what`: ...) unless the checkpoint holds the state a run continues from."""
+    missing = [k for k in ("optimizer", "rng", "step", "seconds") if k not in ckpt]
+    if missing:
+        raise ValueError(f"{what}: it lacks {missing}, which every checkpoint `train` writes holds; "
+                         "use --force to start afresh")
+
+
 # Fields that act only on steps after the polish: a finished run may be extended by them
 # (`--extend`) without retraining what came before.
 EXTENDABLE = ("train.dynamics_steps", "train.dynamics_lr")
@@ -346,6 +354,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
                 raise ValueError(f"--extend {extend} and --out are the same file; write the extended run "
                                  "to another --out (the finished run is kept)")
             ckpt = read_checkpoint(extend, map_location=device)
+            _check_continuable(ckpt, f"cannot extend {extend}")
             problems = _extend_problems(ckpt, cfg, precision, env, data_meta)
             if problems:
                 raise ValueError(f"cannot extend {extend}: {'; '.join(problems)}")
@@ -358,10 +367,7 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             if not out_path.exists():
                 raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
             ckpt = read_checkpoint(out_path, map_location=device)
-            missing = [k for k in ("optimizer", "rng", "step", "seconds") if k not in ckpt]
-            if missing:
-                raise ValueError(f"cannot resume {out_path}: it lacks {missing}, which every checkpoint `train` "
-                                 "writes holds; use --force to start afresh")
+            _check_continuable(ckpt, f"cannot resume {out_path}")
             lineage = list(ckpt.get("lineage") or [])
             diff = _resume_differences(ckpt, cfg, precision, env, data_meta)
             if diff:

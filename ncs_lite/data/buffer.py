@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from ..envs import make
-from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, package_versions, progress
+from ..envs.common import outside_action_space
+from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, one_line, package_versions, progress
 
 FORMAT = 1
 FRAMES = 5  # frames per episode: 4 actions
@@ -126,7 +127,7 @@ def load_manifest(directory: str | Path) -> dict:
     try:
         m = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as e:     # JSONDecodeError is a ValueError
-        raise ValueError(f"{path} is not a readable buffer manifest ({_why(e)}); "
+        raise ValueError(f"{path} is not a readable buffer manifest ({one_line(e)}); "
                          "delete the buffer and collect it again") from None
     problem = _manifest_problem(m)
     if problem:
@@ -187,10 +188,6 @@ def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
 _UNREADABLE = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
 
 
-def _why(e: Exception) -> str:
-    return f"{type(e).__name__}: {(str(e).splitlines() or [''])[0][:200]}"     # one line
-
-
 def shard_spec(manifest: dict) -> dict[str, tuple]:
     """What each array of a shard holds per episode, from the manifest: (shape after the
     episode axis, None where the manifest does not say; dtype kinds; finite?). T frames,
@@ -233,7 +230,7 @@ def _read_shard(path: Path, episodes: int, buffer_id: str, spec: dict | None = N
             head = f.read(4)
         z = np.load(path) if head == b"PK\x03\x04" else None   # else np.load would unpickle it
     except _UNREADABLE as e:
-        raise ValueError(f"buffer shard {path} is not a readable .npz ({_why(e)})") from None
+        raise ValueError(f"buffer shard {path} is not a readable .npz ({one_line(e)})") from None
     if z is None:
         raise ValueError(f"buffer shard {path} is not an .npz ("
                          f"{f'it starts with {head!r}, not a zip header' if head else 'an empty file'})")
@@ -245,7 +242,7 @@ def _read_shard(path: Path, episodes: int, buffer_id: str, spec: dict | None = N
             arrays = {k: z[k] for k in ARRAYS}
             stored = str(z[SHARD_ID]) if SHARD_ID in z.files else buffer_id    # none before the hash
         except _UNREADABLE as e:
-            raise ValueError(f"buffer shard {path} is corrupted ({_why(e)})") from None
+            raise ValueError(f"buffer shard {path} is corrupted ({one_line(e)})") from None
     if stored != buffer_id:
         raise ValueError(f"buffer shard {path} belongs to another buffer (manifest hash {stored!r}, "
                          f"expected this buffer's {buffer_id!r})")
@@ -266,12 +263,11 @@ def check_actions(directory: str | Path, actions: np.ndarray) -> None:
         env = make(config.pop("env", None), **config)
     except (TypeError, ValueError) as e:
         raise ValueError(f"buffer {directory}: its manifest's env config builds no env of this code ({e})") from None
-    low, high = env.action_space.low, env.action_space.high
+    space = env.action_space
     env.close()
-    slack = 1e-6 * (high - low)
-    if np.any(actions < low - slack) or np.any(actions > high + slack):
-        raise ValueError(f"buffer {directory} holds actions outside its env's action space (low {low.tolist()}, "
-                         f"high {high.tolist()}); expected the actions `collect` records")
+    if outside_action_space(actions, space).any():
+        raise ValueError(f"buffer {directory} holds actions outside its env's action space (low "
+                         f"{space.low.tolist()}, high {space.high.tolist()}); expected the actions `collect` records")
 
 
 class EpisodeDataset(torch.utils.data.Dataset):

@@ -50,6 +50,15 @@ def constrained_count(cfg) -> int:
     return cfg.num_constrained if cfg.num_constrained is not None else max(1, cfg.num_objects // 2)
 
 
+def outside_action_space(actions, action_space) -> np.ndarray:
+    """(...,) bool: which actions (..., 6) lie outside the Box, with a slack of 1e-6 of its
+    range for float32 rounding of values on the bounds."""
+    low, high = action_space.low, action_space.high
+    slack = 1e-6 * (high - low)
+    a = np.asarray(actions)
+    return ((a < low - slack) | (a > high + slack)).any(-1)
+
+
 def check_action(action, action_space, *, closed: bool, reset: bool) -> np.ndarray:
     """A step's action as float32 (6,), or a ValueError naming what is wrong with it."""
     if closed:
@@ -67,11 +76,9 @@ def check_action(action, action_space, *, closed: bool, reset: bool) -> np.ndarr
         raise ValueError(f"action must have shape (6,) = (w, dw), got {a.shape}")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"action must be finite, got {a.tolist()}")
-    low, high = action_space.low, action_space.high
-    slack = 1e-6 * (high - low)            # float32 rounding of values on the bounds
-    if np.any(a < low - slack) or np.any(a > high + slack):
+    if outside_action_space(a, action_space):
         raise ValueError(f"action {np.round(a, 4).tolist()} is outside the action space: low "
-                         f"{low.tolist()}, high {high.tolist()} (metres)")
+                         f"{action_space.low.tolist()}, high {action_space.high.tolist()} (metres)")
     return a
 
 
