@@ -13,6 +13,8 @@ What the loop guarantees:
   dVAE's constant lr (no warm-up), as in Table 2. Optional polish steps follow the schedule
   (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight), then
   optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss).
+  With `TrainConfig.color_augment` the mixture loss reads each video with its colour
+  channels permuted (data/augment.py), drawn from (seed, step) like the batch.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -48,6 +50,7 @@ import numpy as np
 import torch
 
 from .config import DSlateConfig, config_diff, get_preset, to_dict
+from .data.augment import permute_channels
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
 from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
@@ -433,12 +436,18 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
             for g in opt.param_groups:
                 g["lr"] = (0.0 if polishing else cfg.dvae.lr) if g.get("name") == "dvae" else lr
 
+            dvae_only = step < cfg.train.dvae_warmup_steps
+            augmented = None
+            if cfg.train.color_augment == "channels" and not dvae_only and step < cfg.train.polish_end():
+                # drawn from (seed, step) alone, like the batch, so a resumed run sees the same
+                augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             with autocast(device, precision):
                 if step >= cfg.train.polish_end():       # the dynamics phase: nothing else moves
                     out = model.dynamics_loss(frames, actions)
                 else:
-                    out = forward(frames, actions, tau, dvae_only=step < cfg.train.dvae_warmup_steps,
-                                  foreground_weight=cfg.train.polish_foreground_weight if polishing else None)
+                    out = forward(frames, actions, tau, dvae_only=dvae_only,
+                                  foreground_weight=cfg.train.polish_foreground_weight if polishing else None,
+                                  mixture_videos=augmented)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 _non_finite("loss", loss, step, out_path, last_saved)

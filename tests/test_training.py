@@ -223,3 +223,45 @@ def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
     torch.save(ckpt, path)
     _, path3 = obtain_dslate("ci", seed=1)                    # retrained, not an error
     assert path3 == path and torch.load(path, weights_only=True)["config"] == to_dict(model.cfg)
+
+
+def test_permute_channels_reorders_each_video_once():
+    import numpy as np
+
+    from ncs_lite.data.augment import permute_channels
+
+    videos = torch.randint(0, 256, (64, 2, 4, 4, 3), dtype=torch.uint8)
+    out = permute_channels(videos, np.random.default_rng(0))
+    orders = set()
+    for v, o in zip(videos, out):
+        # the same order in every frame of a video, and a true permutation of the channels
+        order = [next(c for c in range(3) if torch.equal(o[..., j], v[..., c])) for j in range(3)]
+        assert sorted(order) == [0, 1, 2]
+        orders.add(tuple(order))
+    assert len(orders) == 6                                    # all 3! orders occur, the identity too
+    assert torch.equal(out, permute_channels(videos, np.random.default_rng(0)))
+    with pytest.raises(ValueError, match=r"videos must have shape \(B, T, H, W, C\), got \(2, 4, 4, 3\)"):
+        permute_channels(videos[0], np.random.default_rng(0))
+
+
+def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_frames():
+    torch.manual_seed(0)
+    model = DSlate(get_preset("ci")).eval()                    # no dropout: equal inputs, equal losses
+    videos = torch.randint(0, 256, (2, 2, 64, 64, 3), dtype=torch.uint8)
+    actions = torch.zeros(2, 1, 6)
+    seed = torch.random.get_rng_state()
+
+    def losses(mixture_videos):
+        torch.random.set_rng_state(seed)
+        return model(videos, actions, tau=1.0, mixture_videos=mixture_videos)
+
+    same, swapped = losses(videos), losses(videos.flip(-1))   # blue and red exchanged
+    assert torch.equal(same["ce"], swapped["ce"]) and torch.equal(same["latent"], swapped["latent"])
+    assert not torch.allclose(same["mix"], swapped["mix"])
+    model.zero_grad()
+    swapped["ce"].backward(retain_graph=True)                  # slot_grad 0: no path into slot attention
+    assert all(p.grad is None or not p.grad.any() for p in model.slot_attn.parameters())
+    swapped["mix"].backward()
+    assert any(p.grad is not None and p.grad.any() for p in model.slot_attn.parameters())
+    with pytest.raises(ValueError, match="mixture_videos must have the shape of videos"):
+        model(videos, actions, tau=1.0, mixture_videos=videos[:1])

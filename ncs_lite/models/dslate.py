@@ -13,7 +13,9 @@ Training loss for a video of T frames (per-image sums, averaged over images):
     ce       SLATE token cross-entropy of every frame decoded from its slots (sum over tokens)
     ce_dyn   token cross-entropy of frame t+1 decoded from the *predicted* slots
     mix      auxiliary mixture-decoder reconstruction of every frame from its slots (sum
-             over pixels), weighted by cfg.mixture.weight: 0 in `paper`, see mixture_decoder.py
+             over pixels), weighted by cfg.mixture.weight: 0 in `paper`, see mixture_decoder.py;
+             on colour-augmented copies of the frames when the trainer passes them
+             (`mixture_videos`, TrainConfig.color_augment)
     mask     cross-entropy of slot attention's masks (detached) under the masks drawn from
              the states s alone (detached too: it trains the drawing head only; sum over
              positions), weighted by cfg.mixture.state_mask_weight (0 in `paper`, see
@@ -195,13 +197,18 @@ class DSlate(nn.Module):
 
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
-                dvae_only: bool = False, foreground_weight: float | None = None) -> dict:
+                dvae_only: bool = False, foreground_weight: float | None = None,
+                mixture_videos: torch.Tensor | None = None) -> dict:
         """videos (B, T, H, W, 3) uint8, actions (B, T-1, A) -> dict of scalar losses.
 
         dvae_only: compute the dVAE reconstruction alone (ce = ce_dyn = 0), for a warm-up
         phase that gives the transformer stable tokens (see TrainConfig.dvae_warmup_steps).
         foreground_weight: overrides `mixture.foreground_weight` (the polish phase's, see
-        TrainConfig.polish_steps)."""
+        TrainConfig.polish_steps).
+        mixture_videos: videos (B, T, H, W, 3) uint8 for the mixture loss alone, e.g. `videos`
+        colour-augmented (TrainConfig.color_augment): slot attention then learns its masks
+        from them, and the decoder and dynamics read slots of `videos` (without gradient
+        into slot attention when decoder.slot_grad is 0)."""
         videos = self._check_images(videos, 5, "videos")
         B, T = videos.shape[:2]
         if actions.shape != (B, T - 1, self.cfg.action_dim):
@@ -222,7 +229,14 @@ class DSlate(nn.Module):
             return {**out, "loss": mse, "mse": mse}
 
         emb = self._embed(ids)                                         # (B*T, N, d)
-        slots, attn = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D), (B, T, K, N')
+        if mixture_videos is not None:
+            mixture_videos = self._check_images(mixture_videos, 5, "mixture_videos")
+            if mixture_videos.shape != videos.shape:
+                raise ValueError(f"mixture_videos must have the shape of videos {tuple(videos.shape)}, "
+                                 f"got {tuple(mixture_videos.shape)}")
+        own = mixture_videos is None or self.cfg.decoder.slot_grad != 0.0   # slots learn from these frames
+        with torch.set_grad_enabled(own and torch.is_grad_enabled()):
+            slots, attn = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D), (B, T, K, N')
         read = scale_grad(slots, self.cfg.decoder.slot_grad)           # what decoder/dynamics see
         dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
         logits = self.decoder(dec_in, read.flatten(0, 1))              # (B*T, N, V)
@@ -236,7 +250,11 @@ class DSlate(nn.Module):
         out.update(mse=mse, ce=ce, ce_dyn=ce_dyn)
         loss = mse + ce + ce_dyn
         if self.mixture is not None:
-            out["mix"] = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1),
+            xm, mslots, mattn = x, slots, attn
+            if mixture_videos is not None:
+                xm = mixture_videos.flatten(0, 1).float() / 255.0
+                mslots, mattn = self._inputs_to_slots(self._slot_inputs(xm), T)
+            out["mix"] = self.mixture_error(xm, mslots.flatten(0, 1), mattn.flatten(0, 1),
                                             foreground_weight).mean()
             loss = loss + self.cfg.mixture.weight * out["mix"]
         if self.state_masks is not None:
