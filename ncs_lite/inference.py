@@ -80,7 +80,7 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
                   env: str = "block-rearrange", device=None) -> tuple[DSlate, Path]:
     """The notebooks' "load the checkpoint if present, else train": returns (model, path).
 
-    * `reduced` without `train_from_scratch`: the shipped checkpoint, when present.
+    * `reduced` without `train_from_scratch`: `env`'s shipped checkpoint, when present.
     * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
       `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
       `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
@@ -92,8 +92,9 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     from .data import cached_buffer
     from .training import train
 
-    if preset == "reduced" and not train_from_scratch and SHIPPED_CHECKPOINT.exists():
-        return load_dslate(SHIPPED_CHECKPOINT, device), SHIPPED_CHECKPOINT
+    shipped = _SHIPPED.get(env, {}).get("model")
+    if preset == "reduced" and not train_from_scratch and shipped is not None and shipped.exists():
+        return load_dslate(shipped, device), shipped
     cfg = get_preset(preset)
     cfg.train.seed = int(seed)
     path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"

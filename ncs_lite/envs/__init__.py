@@ -7,8 +7,10 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 
-from .block_rearrange import PALETTE, BlockRearrange, BlockRearrangeConfig
+from .block_rearrange import COLOR_NAMES, PALETTE, BlockRearrange, BlockRearrangeConfig
+from .objects import COLOUR_NAMES, COLOURS
 
 # name used by the CLI and `make` -> (gymnasium id, entry point)
 ENVIRONMENTS = {
@@ -33,4 +35,27 @@ def make(name: str, **kwargs) -> gym.Env:
     return getattr(importlib.import_module(module), cls)(**kwargs)
 
 
-__all__ = ["ENVIRONMENTS", "PALETTE", "BlockRearrange", "BlockRearrangeConfig", "make"]
+# each env's object colours: (names, RGB (n, 3) in [0, 1]); robogym-rearrange's come from
+# envs.objects, which needs no MuJoCo, so figures can name them without making the env
+PALETTES = {"block-rearrange": (COLOR_NAMES, PALETTE), "robogym-rearrange": (COLOUR_NAMES, COLOURS)}
+
+
+def palette(name: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """The colours objects of env `name` take: (names, RGB (n, 3) in [0, 1])."""
+    if name not in PALETTES:
+        raise ValueError(f"unknown environment {name!r}; expected one of {sorted(PALETTES)}")
+    return PALETTES[name]
+
+
+def colour_names(name: str, colors) -> list[str]:
+    """Names of the objects' colours (k, 3) (`info["colors"]`, `buffer["colors"][e]`) in env
+    `name`'s palette, nearest colour first (for figure titles and captions)."""
+    names, rgb = palette(name)
+    colors = np.asarray(colors, np.float64)
+    if colors.ndim != 2 or colors.shape[1] != 3:
+        raise ValueError(f"colors must have shape (k, 3), got {colors.shape}")
+    return [names[i] for i in np.abs(rgb[None] - colors[:, None]).sum(-1).argmin(1)]
+
+
+__all__ = ["ENVIRONMENTS", "PALETTE", "PALETTES", "BlockRearrange", "BlockRearrangeConfig", "colour_names",
+           "make", "palette"]
