@@ -4,6 +4,8 @@ PY       := $(VENV)/bin/python
 STAMP    := $(VENV)/.installed
 PRESET   ?= reduced
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9][0-9]_*.ipynb))
+# notebooks with an `env` parameter, run on robogym-rearrange too (`reproduce`; tests/test_notebooks_robogym.py at ci)
+ENV_NOTEBOOKS := notebooks/04_dslate_training.ipynb notebooks/05_graph_construction.ipynb notebooks/06_action_selection.ipynb
 BUILD    := build
 
 SEEDS    ?= 0 1 2
@@ -39,9 +41,19 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
+	# notebooks 04-06 once more on robogym-rearrange (issue 14): same parameters but `env`; executed
+	# copies <name>_robogym.ipynb, figures in figures/<name>/robogym-rearrange/, times as <name>_robogym
+	for nb in $(ENV_NOTEBOOKS); do \
+	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=robogym-rearrange)"; start=$$(date +%s.%N); \
+	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
+	    -p env robogym-rearrange $$nb $(BUILD)/notebooks/$${name}_robogym.ipynb || exit 1; \
+	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	    $${name}_robogym $$(date +%s.%N) $$start $(PRESET) || exit 1; \
+	done
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"
 
-# Unit tests + every notebook under nbmake at the `ci` preset. Figures of the test run go
+# Unit tests + every notebook under nbmake at the `ci` preset (tests/test_notebooks_robogym.py runs
+# ENV_NOTEBOOKS once more with env=robogym-rearrange through papermill). Figures of the test run go
 # to build/ so the committed `reduced` figures stay as they are.
 test: $(STAMP)
 	NCS_LITE_PRESET=ci NCS_LITE_PROGRESS=0 NCS_LITE_FIGURES=$(BUILD)/test-figures \
