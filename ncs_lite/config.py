@@ -319,6 +319,9 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
+    align: str = "mutual"       # align's pairs (ncs.policy.match): "hungarian" = all of the matching
+    #                             (the paper); "mutual" = only entities that are each other's nearest
+    #                             type, so a partial goal's unconstrained cubes are no constraints
     edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
 
@@ -332,6 +335,10 @@ class NCSConfig:
         if self.state not in states:
             raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
         from .ncs.graph import EDGE_ACTIONS
+        from .ncs.policy import ALIGN_RULES
+
+        if self.align not in ALIGN_RULES:
+            raise ValueError(f"ncs.align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {self.align!r}")
 
         if self.edge_action not in EDGE_ACTIONS:
             raise ValueError(f"ncs.edge_action must be one of {', '.join(map(repr, EDGE_ACTIONS))}, "

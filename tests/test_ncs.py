@@ -74,6 +74,23 @@ def test_align_matches_types_despite_permutation():
     np.testing.assert_array_equal(c[np.argsort(g)], perm.numpy())
 
 
+def test_mutual_align_drops_entities_without_a_counterpart():
+    # a partial goal: the goal shows cubes 0 and 2 and the floor (3); the current image also
+    # cube 1, which the plain matching pairs with a leftover goal slot (4, far from every type)
+    current = torch.tensor([[0.0, 0], [5, 0], [0, 5], [9, 9]])
+    goal = torch.tensor([[0.1, 0], [0, 5.1], [9, 9.1], [-20, -20]])
+    g, c = align(current, goal)
+    assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3), (3, 1)]
+    g, c = align(current, goal, "mutual")
+    assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
+    types = torch.eye(5)[:4] * 3                               # counterparts all round: no change
+    perm = torch.tensor([2, 0, 3, 1])
+    for a, b in zip(align(types, types[perm] + 0.01), align(types, types[perm] + 0.01, "mutual")):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', got 'best'"):
+        align(types, types, "best")
+
+
 def test_constraint_distance_zero_when_satisfied():
     s = torch.rand(3, 8)
     d = constraint_distances(s, torch.cat([s[:2], torch.rand(1, 8)]))
