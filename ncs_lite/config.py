@@ -319,9 +319,10 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
-    align: str = "mutual"       # align's pairs (ncs.policy.match): "hungarian" = all of the matching
+    align: str = "hungarian"    # align's pairs (ncs.policy.match): "hungarian" = all of the matching
     #                             (the paper); "mutual" = only entities that are each other's nearest
     #                             type, so a partial goal's unconstrained cubes are no constraints
+    #                             (it helps partial goals and hurts complete ones: ncs/policy.py)
     edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
 

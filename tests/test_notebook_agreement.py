@@ -95,7 +95,7 @@ def test_aligned_masks_reproduce_the_decision(model, graph, num_objects):
         g, c = align(last["current"].types, last["goal"].types, agent.align)
         np.testing.assert_array_equal(g, last["goal_index"])
         np.testing.assert_array_equal(c, last["current_index"])
-        assert len(goal_masks) == len(current_masks) == len(g) <= num_objects + 1
+        assert len(goal_masks) == len(current_masks) == len(g) <= max(model.cfg.slots.num_slots, num_objects + 1)
         raw = constraint_distances(pool_masks(current_masks), pool_masks(goal_masks)).numpy()
         np.testing.assert_allclose(raw, last["raw_distances"], rtol=0, atol=1e-6)
         np.testing.assert_array_equal(graph.bind(pool_masks(current_masks)).numpy(), last["src_nodes"])

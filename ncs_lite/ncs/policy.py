@@ -11,14 +11,17 @@ Each step:
    mask graphs, squared Euclidean for slot graphs) and take the action on the edge between
    them; with no such edge take a random action.
 
-Two decisions the paper leaves open. **Entities without a counterpart** (`align="mutual"`, the
-kit's default through `NCSConfig.align`; "hungarian" = the plain matching): a partial goal's
-image shows only the constrained cubes, so the Hungarian matching pairs every unconstrained
-cube with a goal slot of the floor, far in type, and select-constraint then moves cubes that
-no constraint names. Keeping only the pairs whose two entities are each other's nearest type
-drops them (on the shipped model, 50 partial-goal tasks: 0.32 -> 0.62 at 4 objects and 0.08 ->
-0.62 at 7; complete goals 0.82 -> 0.84 at 7; `figures/tables/baselines_reduced.csv` has the
-current numbers). Second: a pair whose current and goal states bind to the *same*
+Two decisions the paper leaves open. **Entities without a counterpart** (`NCSConfig.align`):
+a partial goal's image shows only the constrained cubes, so the Hungarian matching (the
+paper's, and the default "hungarian") pairs every unconstrained cube with a leftover goal
+slot of the floor, far in type, and select-constraint then moves cubes that no constraint
+names. "mutual" keeps only the pairs whose two entities are each other's nearest type. On the
+shipped model (`evaluate --method ncs --goal partial --episodes 50 --set ncs.align=mutual`)
+it raised partial goals from 0.32 to 0.62 at 4 objects and from 0.08 to 0.62 at 7, but it
+lowered complete goals at 4 objects from 0.91 to 0.75 (100 tasks, notebook 06's run with it;
+random fallbacks 17 % -> 39 %): with 6 slots for 4 cubes a spare slot that copies part of a
+cube can be a cube's nearest type and break the pair. So it is an option, not the default.
+Second: a pair whose current and goal states bind to the *same*Second: a pair whose current and goal states bind to the *same*
 node counts as satisfied (its distance is set to 0 before sampling). The graph holds no
 transition for it, so selecting it could only lead to a random action, and a random action
 can undo a cube already in place. Learned masks are soft, so an object already at its goal
