@@ -71,7 +71,7 @@ def test_off_grid_target_is_noop(env):
     assert info["moved"] == -1
 
 
-def test_bad_actions_and_configs_are_refused_by_name():
+def test_bad_actions_and_configs_are_refused_by_name(check_closed_and_unrendered):
     from ncs_lite.envs import make
 
     env = make("block-rearrange", num_objects=2)
@@ -90,13 +90,7 @@ def test_bad_actions_and_configs_are_refused_by_name():
         with pytest.raises(ValueError, match=match):
             call()
     env.close()
-    for call in (lambda: env.step(np.zeros(6, np.float32)), lambda: env.reset(seed=0)):
-        with pytest.raises(ValueError, match="closed env"):
-            call()
-    shown = make("block-rearrange", num_objects=2, render_mode="rgb_array")
-    with pytest.raises(ValueError, match=r"render\(\) before reset"):
-        shown.render()
-    shown.close()
+    check_closed_and_unrendered(env, "block-rearrange", num_objects=2)
     for kwargs, match in (({"horizon_multiplier": float("nan")}, "horizon_multiplier must be a finite"),
                           ({"horizon_multiplier": float("inf")}, "horizon_multiplier must be a finite"),
                           ({"num_objects": "4"}, "num_objects must be an integer"),

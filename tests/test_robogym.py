@@ -148,7 +148,7 @@ def test_bad_config_raises(kwargs, match):
         make("robogym-rearrange", **kwargs)
 
 
-def test_step_before_reset_and_after_close():
+def test_step_before_reset_and_after_close(check_closed_and_unrendered):
     e = make("robogym-rearrange", num_objects=1)
     with pytest.raises(ValueError, match="before reset"):
         e.step(np.zeros(6, np.float32))
@@ -158,13 +158,7 @@ def test_step_before_reset_and_after_close():
     with pytest.raises(ValueError, match=r"action must be 6 numbers \(w, dw\)"):
         e.step([[0, 0], [0]])
     e.close()
-    for call in (lambda: e.step(np.zeros(6, np.float32)), lambda: e.reset(seed=0)):
-        with pytest.raises(ValueError, match="closed"):
-            call()
-    shown = make("robogym-rearrange", num_objects=1, render_mode="rgb_array")
-    with pytest.raises(ValueError, match=r"render\(\) before reset"):
-        shown.render()
-    shown.close()
+    check_closed_and_unrendered(e, "robogym-rearrange", num_objects=1)
 
 
 def test_a_render_failure_names_mujoco_gl_and_the_libraries(monkeypatch):
