@@ -319,10 +319,11 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
-    align: str = "hungarian"    # align's pairs (ncs.policy.match): "hungarian" = all of the matching
-    #                             (the paper); "mutual" = only entities that are each other's nearest
-    #                             type, so a partial goal's unconstrained cubes are no constraints
-    #                             (it helps partial goals and hurts complete ones: ncs/policy.py)
+    align: str = "either"       # which pairs of align's matching are constraints (ncs.policy.match):
+    #                             "either" = those where one entity is the other's nearest type
+    #                             (the kit's; a partial goal's unconstrained cubes are no
+    #                             constraints), "hungarian" = all of them (the paper's plain
+    #                             matching), "mutual" = both nearest: measured in ncs/policy.py
     edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
 

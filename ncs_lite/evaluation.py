@@ -213,7 +213,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     if method == "mpc":
         return lambda env: MPCAgent(model, learned_perception(model, env.config.num_objects,
                                                               replace(ncs, state="slot")),
-                                    env.action_space, mpc, seed)
+                                    env.action_space, mpc, seed, align=ncs.align)
     agent, kind, command = ((NCSAgent, TransitionGraph, "graph") if method.startswith("ncs") else
                             (NFAgent, SetGraph, "graph-nf"))
     if not isinstance(graph, kind):

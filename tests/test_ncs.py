@@ -81,13 +81,21 @@ def test_mutual_align_drops_entities_without_a_counterpart():
     goal = torch.tensor([[0.1, 0], [0, 5.1], [9, 9.1], [-20, -20]])
     g, c = align(current, goal)
     assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3), (3, 1)]
-    g, c = align(current, goal, "mutual")
-    assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
+    for rule in ("mutual", "either"):
+        g, c = align(current, goal, rule)
+        assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
+    # a spare goal slot that copies part of cube 0 is cube 0's nearest type: "mutual" drops
+    # the cube's pair, "either" keeps it (the cube is still its own goal slot's nearest)
+    current = torch.tensor([[0.0, 0], [5, 0], [1, 0]])        # cube 0, cube 1, a spare slot
+    goal = torch.tensor([[0.0, 0.2], [5, 0.1], [0.1, 0]])       # cube 0, cube 1, a spare slot
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")))) == [(0, 0), (1, 1), (2, 2)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")))) == [(1, 1)]
     types = torch.eye(5)[:4] * 3                               # counterparts all round: no change
     perm = torch.tensor([2, 0, 3, 1])
-    for a, b in zip(align(types, types[perm] + 0.01), align(types, types[perm] + 0.01, "mutual")):
-        np.testing.assert_array_equal(a, b)
-    with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', got 'best'"):
+    for rule in ("mutual", "either"):
+        for a, b in zip(align(types, types[perm] + 0.01, "hungarian"), align(types, types[perm] + 0.01, rule)):
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', 'either', got 'best'"):
         align(types, types, "best")
 
 

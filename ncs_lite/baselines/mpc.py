@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..ncs.policy import align
+from ..ncs.policy import ALIGN_RULES, align
 from .cem import CEMConfig, cem_minimize
 from .goal_conditioned import preset_config
 
@@ -82,7 +82,11 @@ class MPCAgent:
     nothing (the current slots against the goal's, i.e. a plan the model says changes
     nothing)."""
 
-    def __init__(self, model, perception, action_space, cfg: MPCConfig | None = None, seed: int = 0):
+    def __init__(self, model, perception, action_space, cfg: MPCConfig | None = None, seed: int = 0,
+                 align: str = "either"):
+        if align not in ALIGN_RULES:
+            raise ValueError(f"align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {align!r}")
+        self.align = align             # the same pairs as NCS's (`ncs.align`)
         if getattr(perception, "graph_state", None) != "slot":
             raise ValueError("MPC plans on whole slots: its perception must read slot states "
                              f"(state='slot'), got {getattr(perception, 'graph_state', None)!r}")
@@ -104,7 +108,7 @@ class MPCAgent:
             raise ValueError("call reset(obs, info) before act: MPC reads the goal's slots at reset")
         cur = self.perception.current(obs, info)
         slots = slots_of(cur)
-        g_idx, c_idx = align(cur.types, self._goal[:, :cur.types.shape[1]])
+        g_idx, c_idx = align(cur.types, self._goal[:, :cur.types.shape[1]], self.align)
         initial = None
         if self._plan is not None:         # warm start: the rest of the last plan, then the middle
             initial = torch.cat([self._plan[1:], ((self.lower + self.upper) / 2)[:1]])
