@@ -245,7 +245,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     """Slots of every frame of a buffer's videos, and which slot holds which object.
 
     Slots are inferred through each video (`infer_video`: slot k follows one object) with
-    one slot per object plus one for the floor; object o's slot in a frame is the slot
+    one slot per object plus one for the floor, at least the model's trained K (as NCS's
+    perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
     winning most of its true pixels (`slot_assignment`). Returns arrays:
       slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
       per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
@@ -256,9 +257,11 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     """
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
     E, T, k = true.shape[:3]
+    cfg = getattr(model, "cfg", None)                 # stand-in models in tests declare no K
+    num_slots = max(cfg.slots.num_slots if cfg is not None else 0, k + 1)
     slots, masks = [], []
     for i in range(0, E, batch_size):
-        r = model.infer_video(frames[i:i + batch_size], num_slots=k + 1, restarts=restarts, seed=seed)
+        r = model.infer_video(frames[i:i + batch_size], num_slots=num_slots, restarts=restarts, seed=seed)
         slots.append(r.slots.cpu().float())
         masks.append(r.masks.cpu().float())
     slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)
@@ -286,7 +289,7 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
 
     `buffer`: a loaded buffer (`ncs_lite.data.load_buffer`) the model was not trained on.
     Slots are inferred through each video (slot k follows one object), with one slot per
-    object plus one for the floor. Ground truth is used only to match slots to objects
+    object plus one for the floor, at least the model's K (`matched_slots`). Ground truth is used only to match slots to objects
     (the slot winning most of an object's pixels, `slot_assignment`) and as the probes'
     targets. Probes are fitted on the first half of the episodes, scored on the second.
 
@@ -320,7 +323,7 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
     f = matched if matched is not None else matched_slots(model, buffer, restarts, seed, batch_size)
     E, T, k = true.shape[:3]
-    K, Dz = k + 1, model.type_dim
+    K, Dz = f["slots"].shape[2], model.type_dim
     slots, owner, z = f["slots"], f["owner"], f["z"]
     pos, colour, colour_names = f["all_positions"], f["all_colours"], f["colour_names"]
     e_idx = f["episode"]

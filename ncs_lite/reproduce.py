@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
-                    relative_to_repo, sha256_file)
+                    relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
            "mean_sd", "add_subcommand"]
@@ -78,8 +78,15 @@ def write_table(name: str, rows: list[dict], meta: dict, out_dir=None, allow_dir
     return folder / f"{name}.csv"
 
 
+# the sources a stage's value depends on: any edit there recomputes every stage
+STAGE_CODE = ("envs", "models", "ncs", "baselines", "data", "evaluation.py", "config.py", "metrics.py",
+              "inference.py", "reproduce.py")
+
+
 def _stage(path: Path, key: dict, compute):
-    """Load-or-compute for one stage of a run: reuse `path` when it was made from `key`."""
+    """Load-or-compute for one stage of a run: reuse `path` when it was made from `key` by
+    this code (`STAGE_CODE`)."""
+    key = {**key, "code": source_hash(*STAGE_CODE)}
     if path.exists():
         saved = json.loads(path.read_text())
         if saved.get("key") == key:
@@ -162,7 +169,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             ncs = NCSConfig(clusters=clusters, state=state)
             suffix = "" if state == "mask" else "_slot"
             graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
-            graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs)}
+            graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
+                         "code": source_hash(*STAGE_CODE)}
             graph = TransitionGraph.load(graph_path) if graph_path.exists() else None
             if graph is None or graph.info.get("key") != graph_key:
                 print(f"seed {seed}: graph on {state} states", flush=True)

@@ -386,3 +386,21 @@ def test_out_that_is_a_directory_or_below_a_file_is_refused(buffer, tmp_path, ca
             err = capsys.readouterr().err
             assert message in err and err.count("\n") == 1, (name, err)
             assert sorted(tmp_path.iterdir()) == before, name          # no lock, log or temporary left
+
+
+def test_a_table_stage_is_reused_only_for_the_same_inputs_and_code(tmp_path, monkeypatch):
+    from ncs_lite import reproduce
+
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return len(calls)
+
+    path = tmp_path / "stage.json"
+    assert reproduce._stage(path, {"checkpoint": "a"}, compute) == 1
+    assert reproduce._stage(path, {"checkpoint": "a"}, compute) == 1       # reloaded
+    assert reproduce._stage(path, {"checkpoint": "b"}, compute) == 2       # other inputs
+    monkeypatch.setattr(reproduce, "source_hash", lambda *parts: "edited")
+    assert reproduce._stage(path, {"checkpoint": "b"}, compute) == 3       # other code
+    assert json.loads(path.read_text())["key"] == {"checkpoint": "b", "code": "edited"}
