@@ -35,6 +35,7 @@ tokens (B, N) over a vocabulary of V; masks (B, K, H, W).
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
@@ -320,6 +321,19 @@ class DSlate(nn.Module):
         images = self._check_images(images, 4, "images")
         return self._slot_inputs(images.float() / 255.0)
 
+    @contextmanager
+    def _eval_mode(self):
+        """Eval mode for the block, then the mode the model was in. Switches only a training
+        model: `train()` walks every submodule, a sixth of an MPC decision when done per call."""
+        if not self.training:
+            yield
+            return
+        self.eval()
+        try:
+            yield
+        finally:
+            self.train()
+
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
               init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1) -> SlotInference:
@@ -340,9 +354,7 @@ class DSlate(nn.Module):
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
         if init_slots is not None and restarts > 1:
             raise ValueError("restarts > 1 draws fresh initial slots; it cannot be combined with init_slots")
-        was_training = self.training
-        self.eval()
-        try:
+        with self._eval_mode():
             images = self._check_images(images, 4, "images")
             x = images.float() / 255.0                                  # (B, H, W, 3)
             inp = self._slot_inputs(x)                                  # (B, N', d)
@@ -364,8 +376,6 @@ class DSlate(nn.Module):
             masks = self.upsample_masks(attn)
             return SlotInference(slots, slots[..., :self.type_dim], slots[..., self.type_dim:],
                                  masks, attn)
-        finally:
-            self.train(was_training)
 
     @torch.no_grad()
     def reconstruction_error(self, x: torch.Tensor, slots: torch.Tensor,
@@ -415,12 +425,8 @@ class DSlate(nn.Module):
         if actions.shape != (slots.shape[0], self.cfg.action_dim):
             raise ValueError(f"actions must have shape ({slots.shape[0]}, {self.cfg.action_dim}), "
                              f"got {tuple(actions.shape)}")
-        was_training = self.training
-        self.eval()
-        try:
+        with self._eval_mode():
             return self.dynamics(slots.to(self.pos_emb.dtype), actions)
-        finally:
-            self.train(was_training)
 
     @property
     def can_render(self) -> bool:
@@ -462,9 +468,7 @@ class DSlate(nn.Module):
                       seed: int = 0) -> torch.Tensor:
         """Autoregressively generate token ids (B, N) from slots (B, K, D); greedy when
         temperature == 0, else sampled. N sequential decoder passes: for notebooks."""
-        was_training = self.training
-        self.eval()
-        try:
+        with self._eval_mode():
             B, N = slots.shape[0], self.cfg.num_tokens
             gen = torch.Generator(device=self.device).manual_seed(int(seed))
             ids = torch.zeros(B, N, dtype=torch.long, device=self.device)
@@ -476,8 +480,6 @@ class DSlate(nn.Module):
                 else:
                     ids[:, n] = logits.argmax(-1)
             return ids
-        finally:
-            self.train(was_training)
 
     @torch.no_grad()
     def decode(self, slots: torch.Tensor, temperature: float = 0.0, seed: int = 0) -> torch.Tensor:
