@@ -12,9 +12,9 @@ NCS's graph, so NF and NCS differ in the factorization only.
 """
 from __future__ import annotations
 
-from .evaluation import TaskSet, evaluate_method
+from .evaluation import TaskSet, evaluate_methods
 
-__all__ = ["COMPARED", "comparison_assets", "default_workers", "run_comparison"]
+__all__ = ["COMPARED", "comparison_assets", "run_comparison"]
 
 # label: (method, the assets it reads); the order of the figure's legend
 COMPARED = {
@@ -79,84 +79,33 @@ def comparison_assets(preset: str = "reduced", seed: int = 0) -> dict:
     return out
 
 
-def default_workers() -> int:
-    """Processes for `run_comparison`: the cores this process may use, divided by torch's
-    thread count (each worker runs on that many threads, like the caller)."""
-    import os
-
-    import torch
-
-    return max(1, len(os.sched_getaffinity(0)) // torch.get_num_threads())
-
-
-def _evaluate_cell(threads: int, method: str, tasks: TaskSet, kwargs: dict) -> tuple[list[dict], str]:
-    """One cell in a worker process: the caller's thread count (the same floating-point order,
-    so the same rows and cache key as a serial run), no progress bars; the lines it prints
-    (which cache entry it loaded or computed) go back to the caller."""
-    import contextlib
-    import io
-    import os
-
-    import torch
-
-    torch.set_num_threads(threads)
-    os.environ["NCS_LITE_PROGRESS"] = "0"
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
-        rows = evaluate_method(method, tasks, **kwargs)
-    return rows, printed.getvalue()
-
-
 def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partial"), episodes: int = 100,
                    mpc_episodes: int | None = None, horizon_multiplier: float = 4.0, seed: int = 0,
                    methods=tuple(COMPARED), cache: bool = True, workers: int | None = None) -> list[dict]:
     """Per-episode rows (`evaluation.COLUMNS`) of every method in `methods` on the same task
     sets: for each goal kind and object count, `episodes` seeded tasks (MPC: the first
     `mpc_episodes` of them, default all; its planning costs the most). Cached per method and
-    task set (`evaluate_method`).
-
-    The cells (goal kind x object count x method) are independent and seeded, so `workers`
-    processes (default `default_workers()`) run them side by side and return the rows a
-    serial run returns, bit for bit; the costliest (MPC, most objects) start first."""
+    task set (`evaluate_method`). The cells run side by side in `workers` processes
+    (`evaluate_methods`: the rows of a serial run, bit for bit), the costliest (MPC, most
+    objects) first."""
     unknown = sorted(set(methods) - set(COMPARED))
     if unknown:
         raise ValueError(f"unknown methods {unknown}; expected some of {', '.join(COMPARED)}")
-    workers = default_workers() if workers is None else workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     from .baselines import mpc_config
-    from .utils import progress
 
     mpc = mpc_config(assets.get("preset", "reduced"))     # ci: a small CEM; reduced, paper: Appendix B's
-    jobs = []                                              # (method, tasks, evaluate_method's keywords)
+    jobs = []
     for goal in goals:
         for k in counts:
             for label in methods:
                 method, needs = COMPARED[label]
                 n = (mpc_episodes or episodes) if method == "mpc" else episodes
-                tasks = TaskSet(num_objects=k, goal=goal, horizon_multiplier=horizon_multiplier, episodes=n,
-                                seed=seed)
+                tasks = TaskSet(num_objects=k, goal=goal, horizon_multiplier=horizon_multiplier, episodes=n, seed=seed)
                 kw = {"graph": next((assets[a] for a in needs if a.endswith("graph")), None),
                       "model": assets["model"] if "model" in needs else None,
                       "policy": assets[method] if method in ("bc", "iql") else None,
                       "mpc": mpc if method == "mpc" else None, "seed": seed, "label": label, "cache": cache}
                 jobs.append((method, tasks, kw))
-    if workers == 1:
-        return [row for method, tasks, kw in progress(jobs, desc="comparison")
-                for row in evaluate_method(method, tasks, **kw)]
-
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    import torch
-
-    costliest_first = sorted(range(len(jobs)), key=lambda i: (jobs[i][0] != "mpc", -jobs[i][1].num_objects, i))
-    results = [None] * len(jobs)
-    # spawn, not fork: a forked torch can hang in its thread pool
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(_evaluate_cell, torch.get_num_threads(), *jobs[i]): i for i in costliest_first}
-        for future in progress(as_completed(futures), total=len(jobs), desc=f"comparison ({workers} processes)"):
-            results[futures[future]] = future.result()
-    for _, printed in results:
-        print(printed, end="")
-    return [row for rows, _ in results for row in rows]
+    costliest = sorted(range(len(jobs)), key=lambda i: (jobs[i][0] != "mpc", -jobs[i][1].num_objects, i))
+    cells = evaluate_methods(jobs, workers=workers, first=costliest, desc="comparison")
+    return [row for rows in cells for row in rows]

@@ -319,11 +319,12 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
-    align: str = "either"       # which pairs of align's matching are constraints (ncs.policy.match):
-    #                             "either" = those where one entity is the other's nearest type
-    #                             (the kit's; a partial goal's unconstrained cubes are no
-    #                             constraints), "hungarian" = all of them (the paper's plain
-    #                             matching), "mutual" = both nearest: measured in ncs/policy.py
+    align: str = "near"         # which pairs of align's matching are constraints (ncs.policy.match):
+    #                             "near" = those whose types are closer than a quarter of the
+    #                             scene's median type distance (the kit's; a partial goal's
+    #                             unconstrained cubes are no constraints), "hungarian" = all of
+    #                             them (the paper's plain matching), "either" / "mutual" = one /
+    #                             both entities the other's nearest type: measured in ncs/policy.py
     edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
 

@@ -262,6 +262,19 @@ def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed
     return cached("evaluation", lambda: evaluate(make, tasks, name), **key)
 
 
+def _evaluate_job(_, method: str, tasks: TaskSet, kwargs: dict) -> list[dict]:
+    return evaluate_method(method, tasks, **kwargs)
+
+
+def evaluate_methods(jobs, workers: int | None = None, first=None, desc: str = "evaluate") -> list[list[dict]]:
+    """[evaluate_method(method, tasks, **kwargs) for method, tasks, kwargs in jobs], the jobs
+    run side by side in `workers` processes (`workers.map_jobs`: task sets are seeded, so the
+    rows are a serial run's, bit for bit); `first`: the order to start them (costliest first)."""
+    from .workers import map_jobs
+
+    return map_jobs(_evaluate_job, [tuple(job) for job in jobs], workers=workers, first=first, desc=desc)
+
+
 def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -> dict[str, np.ndarray]:
     """Which objects the `ncs` agent's perception fails to give a slot of their own, in the
     start and goal image of every task of `tasks` (E tasks, k objects):

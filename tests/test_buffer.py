@@ -40,6 +40,7 @@ def test_deterministic_and_independent_of_shard_size(tmp_path):
 def test_resume_after_interruption(tmp_path, monkeypatch):
     import ncs_lite.data.buffer as buffer
 
+    monkeypatch.setenv("NCS_LITE_WORKERS", "1")    # the patched recorder lives in this process only
     full = tmp_path / "full"
     collect(full, episodes=9, seed=2, shard_size=3)
     part = tmp_path / "part"
@@ -65,6 +66,13 @@ def test_resume_after_interruption(tmp_path, monkeypatch):
     assert (part / "shard-00000.npz").stat().st_mtime_ns == first   # never rewritten
     for k, v in load_buffer(full).items():
         np.testing.assert_array_equal(load_buffer(part)[k], v)
+
+
+def test_worker_processes_write_the_same_buffer(tmp_path):
+    serial = collect(tmp_path / "serial", episodes=8, seed=3, shard_size=2, workers=1)
+    parallel = collect(tmp_path / "parallel", episodes=8, seed=3, shard_size=2, workers=2)
+    for k, v in load_buffer(serial).items():
+        np.testing.assert_array_equal(load_buffer(parallel)[k], v)
 
 
 def test_mismatched_buffer_is_refused(tmp_path):

@@ -29,3 +29,35 @@ def test_worker_processes_give_the_serial_rows(shipped):
 def test_bad_worker_counts_are_refused(shipped, workers):
     with pytest.raises(ValueError, match="workers must be a positive integer"):
         run_comparison(shipped, methods=("random",), episodes=1, workers=workers)
+
+
+def test_slot_inference_in_worker_processes_gives_the_serial_transitions(shipped, monkeypatch):
+    import torch
+
+    from ncs_lite.data import cached_buffer, load_buffer
+    from ncs_lite.ncs.perception import DSlatePerception
+
+    buffer = load_buffer(cached_buffer(6, seed=5))
+    perception = DSlatePerception(shipped["model"], state="slot", batch_size=2, restarts=2)   # 3 batches
+    done = {}
+    for workers in ("1", "2"):
+        monkeypatch.setenv("NCS_LITE_WORKERS", workers)
+        done[workers] = perception.transitions(buffer)
+    for serial, parallel in zip(done["1"], done["2"]):
+        assert torch.equal(torch.as_tensor(serial), torch.as_tensor(parallel))
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "two", ""])
+def test_bad_worker_variable_is_refused(monkeypatch, value):
+    from ncs_lite.workers import default_workers
+
+    monkeypatch.setenv("NCS_LITE_WORKERS", value)
+    with pytest.raises(ValueError, match="NCS_LITE_WORKERS must be a positive integer"):
+        default_workers()
+
+
+def test_map_jobs_refuses_a_start_order_that_is_not_one():
+    from ncs_lite.workers import map_jobs
+
+    with pytest.raises(ValueError, match="first must order the 2 jobs' indices"):
+        map_jobs(divmod, [(1,), (2,)], shared=7, workers=2, first=[0, 0])

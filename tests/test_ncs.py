@@ -81,7 +81,7 @@ def test_mutual_align_drops_entities_without_a_counterpart():
     goal = torch.tensor([[0.1, 0], [0, 5.1], [9, 9.1], [-20, -20]])
     g, c = align(current, goal)
     assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3), (3, 1)]
-    for rule in ("mutual", "either"):
+    for rule in ("mutual", "either", "near"):
         g, c = align(current, goal, rule)
         assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
     # a spare goal slot that copies part of cube 0 is cube 0's nearest type: "mutual" drops
@@ -90,12 +90,22 @@ def test_mutual_align_drops_entities_without_a_counterpart():
     goal = torch.tensor([[0.0, 0.2], [5, 0.1], [0.1, 0]])       # cube 0, cube 1, a spare slot
     assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")))) == [(0, 0), (1, 1), (2, 2)]
     assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")))) == [(1, 1)]
+    # "near" keeps the two cubes and drops the spare slots' pair (far apart for one entity)
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 1)]
+    # a partial goal: cube 1 is unconstrained and its nearest goal type is a spare slot far from
+    # it; "either" pairs them (cube 1 would be moved), "near" does not
+    current = torch.tensor([[0.0, 0], [5, 0], [0, 9]])         # cube 0, cube 1, floor
+    goal = torch.tensor([[0.1, 0], [0, 9.1], [6, 4]])           # cube 0, floor, a spare slot
+    assert (2, 1) in zip(*(a.tolist() for a in align(current, goal, "either")))
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 2)]
+    same = torch.zeros(4, 3)                                    # identical types stay paired
+    assert [a.tolist() for a in align(same, same[:2], "near")] == [[0, 1], [0, 1]]
     types = torch.eye(5)[:4] * 3                               # counterparts all round: no change
     perm = torch.tensor([2, 0, 3, 1])
-    for rule in ("mutual", "either"):
+    for rule in ("mutual", "either", "near"):
         for a, b in zip(align(types, types[perm] + 0.01, "hungarian"), align(types, types[perm] + 0.01, rule)):
             np.testing.assert_array_equal(a, b)
-    with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', 'either', got 'best'"):
+    with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', 'either', 'near', got 'best'"):
         align(types, types, "best")
 
 

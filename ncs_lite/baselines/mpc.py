@@ -83,7 +83,7 @@ class MPCAgent:
     nothing)."""
 
     def __init__(self, model, perception, action_space, cfg: MPCConfig | None = None, seed: int = 0,
-                 align: str = "either"):
+                 align: str = "near"):
         if align not in ALIGN_RULES:
             raise ValueError(f"align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {align!r}")
         self.align = align             # the same pairs as NCS's (`ncs.align`)

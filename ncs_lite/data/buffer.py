@@ -26,7 +26,8 @@ import torch
 
 from ..envs import make
 from ..envs.common import outside_action_space
-from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, one_line, package_versions, progress
+from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, one_line, package_versions
+from ..workers import default_workers, map_jobs
 
 FORMAT = 1
 FRAMES = 5  # frames per episode: 4 actions
@@ -65,8 +66,9 @@ def record_episode(env, seed_seq: np.random.SeedSequence) -> dict[str, np.ndarra
 
 
 def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_objects: int = 4,
-            seed: int = 0, shard_size: int = 100) -> Path:
-    """Collect (or resume collecting) a buffer of `episodes` random episodes into `out`."""
+            seed: int = 0, shard_size: int = 100, workers: int | None = None) -> Path:
+    """Collect (or resume collecting) a buffer of `episodes` random episodes into `out`;
+    `workers` processes write its shards (`workers.map_jobs`), with the same bytes."""
     episodes, shard_size = _check("episodes", episodes), _check("shard_size", shard_size)
     seed = _check("seed", seed, low=0)
     out = check_out_dir(out, "buffer")
@@ -93,22 +95,31 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
             except ValueError as e:
                 print(f"collect: collecting {shard.name} again: {e}")
         todo.append(s)
-    bar = progress(total=episodes, desc=f"collect {env}", unit="ep",
-                   initial=episodes - sum(_shard_len(s, episodes, shard_size) for s in todo))
+    # shards are independent (episode e depends on (seed, e) alone): worker processes write
+    # them, 4 jobs a worker for the progress bar, each job with one env (a MuJoCo env takes
+    # about a second to make)
+    n = min(default_workers() if workers is None else workers, max(1, len(todo)))
+    jobs = 1 if n == 1 else min(len(todo), 4 * n)
+    map_jobs(_collect_shards, [(todo[i::jobs],) for i in range(jobs)], workers=n,
+             shared=(out, env, num_objects, seed, episodes, shard_size, buffer_id),
+             desc=f"collect {env}: {sum(_shard_len(s, episodes, shard_size) for s in todo)} episodes")
+    return out
+
+
+def _collect_shards(spec: tuple, shards: list[int]) -> None:
+    """Record the episodes of `shards` and write each shard (a job of `collect`'s `map_jobs`)."""
+    out, env, num_objects, seed, episodes, shard_size, buffer_id = spec
     env_ = make(env, num_objects=num_objects)
     try:
-        for s in todo:
-            eps = []
-            for e in range(s * shard_size, s * shard_size + _shard_len(s, episodes, shard_size)):
-                eps.append(record_episode(env_, np.random.SeedSequence([seed, e])))
-                bar.update(1)
+        for s in shards:
+            first = s * shard_size
+            eps = [record_episode(env_, np.random.SeedSequence([seed, e]))
+                   for e in range(first, first + _shard_len(s, episodes, shard_size))]
             arrays = {k: np.stack([ep[k] for ep in eps]) for k in ARRAYS}
             with atomic_path(out / f"shard-{s:05d}.npz") as tmp, open(tmp, "wb") as f:
                 np.savez_compressed(f, **arrays, **{SHARD_ID: np.array(buffer_id)})
     finally:
         env_.close()
-        bar.close()
-    return out
 
 
 def _shard_len(s: int, episodes: int, shard_size: int) -> int:

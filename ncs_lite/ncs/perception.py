@@ -162,15 +162,15 @@ class DSlatePerception:
         (the restarts' initial samples depend on the batch, so the result does too).
         M = E * (T - 1) in episode order: transition t of episode e is row e * (T - 1) + t.
         """
+        from ..workers import map_jobs
+
         frames = buffer["frames"]
-        states, masks = [], []
-        for i in range(0, len(frames), self.batch_size):
-            r = self.model.infer_video(frames[i:i + self.batch_size], iterations=self.iterations,
-                                       num_slots=self.num_slots, restarts=self.restarts)
-            pooled = pool_masks(r.masks).cpu().float()
-            masks.append(pooled)
-            states.append(pooled if self.state == "mask" else r.states.cpu().float())
-        states, masks = torch.cat(states), torch.cat(masks)           # (E, T, K, D), (E, T, K, N)
+        batches = [(frames[i:i + self.batch_size],) for i in range(0, len(frames), self.batch_size)]
+        # each batch is seeded alone: worker processes give the loop's result
+        done = map_jobs(_infer_videos, batches, desc="slot inference",
+                        shared=(self.model, self.iterations, self.num_slots, self.restarts, self.state))
+        masks = torch.cat([m for m, _ in done])                          # (E, T, K, N)
+        states = torch.cat([s for _, s in done])                         # (E, T, K, D)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
         moved = torch.as_tensor(buffer["moved"])                       # (E, T-1)
         gt_moved = torch.gather(gt[:, :-1], 2, moved[..., None, None].expand(-1, -1, 1, gt.shape[-1]))
@@ -186,6 +186,14 @@ class DSlatePerception:
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
                 "batch_size": self.batch_size, "grid": STATE_GRID}
+
+
+def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pooled masks and states of a batch of videos (a job of `DSlatePerception.transitions`)."""
+    model, iterations, num_slots, restarts, state = spec
+    r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts)
+    pooled = pool_masks(r.masks).cpu().float()
+    return pooled, (pooled if state == "mask" else r.states.cpu().float())
 
 
 # code the transitions of a buffer depend on (besides the buffer and the perception's settings)
