@@ -303,7 +303,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     goals, horizon 4x). Each evaluation is cached by its inputs (`evaluate_method`)."""
     from .config import NCSConfig, to_dict
     from .data import cached_buffer, load_buffer
-    from .evaluation import TaskSet, evaluate_method, summarize
+    from .evaluation import TaskSet, evaluate_methods, summarize
     from .inference import ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, load_dslate
     from .metrics import factorization_scores
     from .ncs.graph import TransitionGraph
@@ -324,11 +324,13 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
         row[f"absorbed_4_r{restarts}"] = round(seg["absorbed"], 4)
     row.update(graph_edges=learned.num_edges, coverage=round(learned.info.get("coverage", float("nan")), 4),
                oracle_graph_edges=oracle.num_edges)
+    methods = (("ncs", {"graph": learned, "model": model}), ("ncs-oracle", {"graph": oracle}), ("random", {}))
+    jobs = [(method, TaskSet(env=env, num_objects=k, episodes=episodes, seed=0), {"ncs": ncs, **kwargs})
+            for k in objects for method, kwargs in methods]
+    cells = iter(evaluate_methods(jobs, desc="robogym evaluation"))     # worker processes, a loop's rows
     for k in objects:
-        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
-        for method, kwargs in (("ncs", {"graph": learned, "model": model}), ("ncs-oracle", {"graph": oracle}),
-                               ("random", {})):
-            s = summarize(evaluate_method(method, tasks, ncs=ncs, **kwargs))[0]
+        for method, _ in methods:
+            s = summarize(next(cells))[0]
             key = method.replace("-", "_")
             row[f"{key}_{k}"] = s["success"]
             row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
