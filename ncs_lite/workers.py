@@ -26,10 +26,11 @@ __all__ = ["default_workers", "map_jobs"]
 _shared: Any = None     # a worker's copy of `shared`
 
 
-def default_workers() -> int:
+def default_workers(threads: int | None = None) -> int:
     """$NCS_LITE_WORKERS, else 1 on a GPU machine (the GPU runs a job's batch in parallel),
-    else the cores this process may use divided by torch's thread count (each worker runs on
-    that many threads), at least 1."""
+    else the cores this process may use divided by the threads a job keeps busy (`threads`,
+    default torch's thread count, which each worker runs on; 1 for jobs that are mostly not
+    torch, such as an env's episodes), at least 1."""
     import torch
 
     value = os.environ.get("NCS_LITE_WORKERS")
@@ -39,7 +40,7 @@ def default_workers() -> int:
         return int(value)
     if torch.cuda.is_available():
         return 1
-    return max(1, len(os.sched_getaffinity(0)) // torch.get_num_threads())
+    return max(1, len(os.sched_getaffinity(0)) // (threads or torch.get_num_threads()))
 
 
 def _start_worker(threads: int, shared) -> None:

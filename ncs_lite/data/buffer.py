@@ -95,10 +95,10 @@ def collect(out: str | Path, episodes: int, env: str = "block-rearrange", num_ob
             except ValueError as e:
                 print(f"collect: collecting {shard.name} again: {e}")
         todo.append(s)
-    # shards are independent (episode e depends on (seed, e) alone): worker processes write
-    # them, 4 jobs a worker for the progress bar, each job with one env (a MuJoCo env takes
-    # about a second to make)
-    n = min(default_workers() if workers is None else workers, max(1, len(todo)))
+    # shards are independent (episode e depends on (seed, e) alone): worker processes (one a
+    # core: an env steps on one thread) write them, 4 jobs a worker for the progress bar, each
+    # job with one env (a MuJoCo env takes about a second to make)
+    n = min(default_workers(threads=1) if workers is None else workers, max(1, len(todo)))
     jobs = 1 if n == 1 else min(len(todo), 4 * n)
     map_jobs(_collect_shards, [(todo[i::jobs],) for i in range(jobs)], workers=n,
              shared=(out, env, num_objects, seed, episodes, shard_size, buffer_id),
