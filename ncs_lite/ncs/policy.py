@@ -19,11 +19,11 @@ floor, or a spare slot), and select-constraint then moves cubes that no constrai
 "mutual" when both are; neither is enough: an unconstrained cube's nearest goal type is
 often a spare goal slot holding a fragment of a constrained cube, so the cube is moved into
 that cube's goal cell, where it blocks the goal, and the agent repeats the blocked move to
-the horizon (5 of 7 failures traced at 4 objects). The kit's default, "near", keeps a pair
-when its type distance is at most `NEAR_RATIO` (a quarter) of the median of align's cost
-matrix, which is a distance between two different entities (most of the G x C pairs are):
-types are nearly invariant (notebook 04: an object's z moves about 0.02x the distance
-between two objects'), so one entity's two types lie far below that.
+the horizon (what traces of failed partial-goal tasks at 4 objects showed). The kit's
+default, "near", keeps a pair when its type distance is at most `NEAR_RATIO` (a quarter) of
+the median of align's cost matrix, which is a distance between two different entities (most
+of the G x C pairs are): types are nearly invariant (notebook 04: an object's z moves about
+0.02x the distance between two objects'), so one entity's two types lie far below that.
 Success on the shipped model (`evaluate --method ncs --goal partial|complete --num-objects K
 --episodes 50 --set ncs.align=RULE [--seed 1]`, one thread), 4 / 5 / 6 / 7 objects:
   - partial goals, the comparison's tasks (seed 0): near 0.92 / 0.94 / 0.78 / 0.92, either
