@@ -211,15 +211,17 @@ def _r2(pred, target) -> float:
 
 def _colour_ids(colors: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """(E, k, 3) object colours -> (E, k) integer ids of the distinct colours, and a name per
-    id (block-rearrange's colour name where the colour is one of its palette's)."""
+    id (the colour's name in block-rearrange's or robogym-rearrange's palette, if it is one)."""
     from .envs.block_rearrange import COLOR_NAMES, PALETTE
+    from .envs.objects import COLOUR_NAMES, COLOURS
 
+    palette, palette_names = np.concatenate([PALETTE, COLOURS]), (*COLOR_NAMES, *COLOUR_NAMES)
     flat = np.round(np.asarray(colors, np.float64).reshape(-1, 3), 4)
     distinct, ids = np.unique(flat, axis=0, return_inverse=True)
     names = []
     for i, c in enumerate(distinct):
-        d = np.linalg.norm(PALETTE - c, axis=1)
-        names.append(COLOR_NAMES[d.argmin()] if d.min() < 1e-3 else f"colour {i}")
+        d = np.linalg.norm(palette - c, axis=1)
+        names.append(palette_names[d.argmin()] if d.min() < 1e-3 else f"colour {i}")
     return ids.reshape(colors.shape[:2]), names
 
 
