@@ -327,6 +327,8 @@ class NCSConfig:
     #                             both entities the other's nearest type: measured in ncs/policy.py
     edge_action: str = "most_common"  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells) or "nearest" (continuous positions, robogym-rearrange)
+    nearest_variance: float = 0.95  # "nearest" compares slot states along the directions holding
+    #                             this share of the buffer's moves (1 = whole states; ncs.graph)
 
     def validate(self) -> "NCSConfig":
         for name, low in (("clusters", 1), ("restarts", 1), ("iterations", 1), ("extra_slots", 0),
@@ -343,6 +345,9 @@ class NCSConfig:
         if self.align not in ALIGN_RULES:
             raise ValueError(f"ncs.align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {self.align!r}")
 
+        if not (isinstance(self.nearest_variance, (int, float)) and not isinstance(self.nearest_variance, bool)
+                and 0.0 < self.nearest_variance <= 1.0):
+            raise ValueError(f"ncs.nearest_variance must be a number in (0, 1], got {self.nearest_variance!r}")
         if self.edge_action not in EDGE_ACTIONS:
             raise ValueError(f"ncs.edge_action must be one of {', '.join(map(repr, EDGE_ACTIONS))}, "
                              f"got {self.edge_action!r}")

@@ -220,7 +220,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
-    extra = {"align": ncs.align} if agent is NCSAgent else {}
+    extra = {"align": ncs.align, "nearest_variance": ncs.nearest_variance} if agent is NCSAgent else {}
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed, **extra)
     return lambda env: agent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed,

@@ -60,6 +60,9 @@ def test_ncs_overrides():
         ncs_config(["train.lr=1"])
     with pytest.raises(ValueError, match="ncs.restarts must be an integer >= 1"):
         ncs_config(["ncs.restarts=0"])
+    assert ncs_config(["ncs.nearest_variance=1"]).nearest_variance == 1
+    with pytest.raises(ValueError, match=r"ncs.nearest_variance must be a number in \(0, 1\], got 1.5"):
+        ncs_config(["ncs.nearest_variance=1.5"])
 
 
 def test_overrides_recorded_and_resume_refuses_differences(buffer, tmp_path):

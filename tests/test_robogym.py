@@ -185,6 +185,26 @@ def test_nearest_edge_action_takes_the_closest_transition_and_the_next_on_retry(
     assert g.edge_action == "nearest" and g.info["edge_action"] == "nearest"
 
 
+def test_nearest_compares_states_along_the_directions_moves_span():
+    # every move goes +1 in x; y differs between examples (what a learned s holds beside the
+    # position) and should not decide which transition's start is nearest the object
+    from ncs_lite.ncs.graph import TransitionGraph
+
+    g = TransitionGraph(torch.zeros(2, 2), "sqeuclidean")
+    before = torch.tensor([[0.3, 5.0], [0.01, 0.0], [0.5, 2.0]])
+    actions = np.arange(18, dtype=np.float32).reshape(3, 6)
+    after = before + torch.tensor([1.0, 0.0])
+    g.add(torch.zeros(3, dtype=torch.long), torch.ones(3, dtype=torch.long), actions, before, after)
+    basis = g.moved_subspace(0.95)
+    assert basis.shape == (2, 1) and torch.allclose(basis.abs()[:, 0], torch.tensor([1.0, 0.0]))
+    now, goal = torch.tensor([0.0, 5.0]), torch.tensor([1.0, 5.0])
+    assert np.array_equal(g.action(0, 1, now, goal), actions[0])                 # whole states
+    assert np.array_equal(g.action(0, 1, now, goal, basis=basis), actions[1])    # along x
+    assert g.moved_subspace(1.0) is None
+    with pytest.raises(ValueError, match="variance must be in"):
+        g.moved_subspace(0.0)
+
+
 def test_nearest_graph_round_trips(tmp_path):
     before = torch.rand(50, 3, 3)
     after = before.clone()

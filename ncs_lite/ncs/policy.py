@@ -62,6 +62,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
+from ..config import NCSConfig
 from .graph import TransitionGraph, isolate_distance
 
 
@@ -111,12 +112,13 @@ class NCSAgent:
     was built on (`TransitionGraph.check_state`)."""
 
     def __init__(self, graph: TransitionGraph, perception, action_space, seed: int = 0,
-                 align: str = "near"):
+                 align: str = "near", nearest_variance: float = NCSConfig.nearest_variance):
         if getattr(perception, "graph_state", None) is not None:
             graph.check_state(perception.graph_state)
         if align not in ALIGN_RULES:
             raise ValueError(f"align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {align!r}")
         self.align = align
+        self._basis = graph.moved_subspace(nearest_variance)   # "nearest" edge actions compare along it
         self.graph, self.perception, self.action_space = graph, perception, action_space
         self.rng = np.random.default_rng(seed)
         self.action_space.seed(int(seed))
@@ -172,7 +174,7 @@ class NCSAgent:
             rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
             self._retry = (key, rank)
             self.last["rank"] = rank
-            action = self.graph.action(src[pick], dst[pick], before, after, rank)
+            action = self.graph.action(src[pick], dst[pick], before, after, rank, basis=self._basis)
         else:
             action = self.graph.action(src[pick], dst[pick])
         if action is None:
