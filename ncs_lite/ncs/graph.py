@@ -28,7 +28,9 @@ How an edge becomes an action (`edge_action`, a decision the paper leaves open):
   remaining directions, though small, are as large as the 5 cm the pick allows: on the
   whole s the chosen transition started more than 5 cm from the object in 43 % of the
   learned agent's steps, and 4-object success was 0.49; on the two directions, 0.63
-  (100 tasks). The position oracle's states move in x and y only, so it is unchanged.
+  (100 tasks). The position oracle's states (x, y, z) move in x and y only: its
+  comparisons now leave out z, the object's resting height, which depends on its shape
+  (7-object success 0.72 -> 0.82, 4 objects 0.97 -> 0.98).
 
 Shapes: M transitions, K entities per frame, D state features, N nodes.
 """
