@@ -127,6 +127,23 @@ $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt: | $(ASSETS)/dslate_robogym_re
 $(ASSETS)/graph_robogym_rearrange_oracle_position.pt: | $(RG_GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --oracle --data $(RG_GRAPH_DATA) --out $@
 
+# robogym-rearrange's baselines (issue 14: notebook 07's robogym columns): BC and IQL on the
+# training buffer, NF bound by the shipped graphs' nodes on the graph buffer; only missing files
+RG_BASELINE_ASSETS := $(ASSETS)/bc_robogym_rearrange_reduced.pt $(ASSETS)/iql_robogym_rearrange_reduced.pt \
+  $(ASSETS)/nf_graph_robogym_rearrange_reduced.pt $(ASSETS)/nf_graph_robogym_rearrange_oracle.pt
+.PHONY: robogym-baseline-assets
+robogym-baseline-assets: $(RG_BASELINE_ASSETS)
+$(ASSETS)/bc_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
+	$(PY) -m ncs_lite train-baseline --method bc --env robogym-rearrange --preset reduced --data $(RG_DATA) --out $@
+$(ASSETS)/iql_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
+	$(PY) -m ncs_lite train-baseline --method iql --env robogym-rearrange --preset reduced --data $(RG_DATA) --out $@
+$(ASSETS)/nf_graph_robogym_rearrange_reduced.pt: | $(RG_GRAPH_DATA)/manifest.json
+	$(PY) -m ncs_lite graph-nf --checkpoint $(ASSETS)/dslate_robogym_rearrange_reduced.pt --data $(RG_GRAPH_DATA) \
+	  --bind-graph $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt --out $@
+$(ASSETS)/nf_graph_robogym_rearrange_oracle.pt: | $(RG_GRAPH_DATA)/manifest.json
+	$(PY) -m ncs_lite graph-nf --oracle --data $(RG_GRAPH_DATA) \
+	  --bind-graph $(ASSETS)/graph_robogym_rearrange_oracle_position.pt --out $@
+
 # Student copies (stubs that raise NotImplementedError) and solutions from the masters in
 # notebooks/; deterministic, so a rerun changes nothing (tests/test_exercises.py checks it).
 exercises: $(STAMP)
