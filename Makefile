@@ -5,7 +5,8 @@ STAMP    := $(VENV)/.installed
 PRESET   ?= reduced
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9][0-9]_*.ipynb))
 # notebooks with an `env` parameter, run on robogym-rearrange too (`reproduce`; tests/test_notebooks_robogym.py at ci)
-ENV_NOTEBOOKS := notebooks/04_dslate_training.ipynb notebooks/05_graph_construction.ipynb notebooks/06_action_selection.ipynb
+ENV_NOTEBOOKS := notebooks/04_dslate_training.ipynb notebooks/05_graph_construction.ipynb notebooks/06_action_selection.ipynb \
+  notebooks/07_baselines.ipynb
 BUILD    := build
 
 SEEDS    ?= 0 1 2
@@ -72,10 +73,11 @@ seeds: $(STAMP)
 clusters: $(STAMP)
 	$(PY) -m ncs_lite reproduce clusters
 
-# The main comparison (notebook 07's table): every method at 4..7 objects, both goal kinds; on
-# the notebooks' thread count, so after `make reproduce` it reloads notebook 07's cached rows.
+# The main comparison (notebook 07's table): every method at 4..7 objects, both goal kinds, on each
+# environment; on the notebooks' thread count, so after `make reproduce` it reloads notebook 07's rows.
 baselines: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines
+	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env robogym-rearrange
 
 # The shipped assets of the baselines and oracles, each made by one command from the same
 # buffers as the shipped graphs (1000 episodes) and dSLATE (5000); only missing files are made.

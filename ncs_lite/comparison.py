@@ -34,47 +34,59 @@ COMPARED = {
 EPISODES = {"ci": 2, "reduced": 50, "paper": 100}
 MPC_EPISODES = {"ci": 1, "reduced": 25, "paper": 100}
 GRAPH_EPISODES = {"ci": 60, "reduced": 1000, "paper": 5000}   # buffer the graphs are built on (= notebooks 05-06)
-CLUSTERS = {"ci": 8, "reduced": 30, "paper": 30}                # Table 4 (ci: a tiny buffer)
+CI_CLUSTERS = 8                                                 # ci's tiny buffer; else Table 4's
 
 
-def comparison_assets(preset: str = "reduced", seed: int = 0) -> dict:
-    """What every method runs from, and where each came from (`paths`).
+def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-rearrange") -> dict:
+    """What every method runs from on `env`, and where each came from (`paths`); `ncs`, the
+    NCS settings the graph agents read (Table 3's state of `env`, its graph's nodes and edge
+    actions).
 
-    `reduced`: the shipped assets (`inference.shipped_asset`, built by `make baseline-assets`).
-    Other presets: the dSLATE of `obtain_dslate`, the policies of `obtain_policy`, and the
-    graphs built here from the cached graph buffer (cached transitions, seconds)."""
+    `reduced`: the shipped assets (`inference.shipped_asset`, built by `make baseline-assets`
+    and `make robogym-baseline-assets`). Other presets: the dSLATE of `obtain_dslate`, the
+    policies of `obtain_policy`, and the graphs built here from the cached graph buffer."""
+    from dataclasses import replace
+
     from .baselines import SetGraph, set_graph_from_transitions
-    from .evaluation import learned_perception
     from .baselines.runs import load_trained_policy, obtain_policy
+    from .config import NCSConfig
     from .data import cached_buffer
+    from .evaluation import learned_perception
     from .inference import load_dslate, obtain_dslate, shipped_asset
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import OraclePerception, buffer_transitions
+    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
+    from .ncs.perception import ORACLE_STATES, OraclePerception, buffer_transitions
 
+    if env not in STATE_BY_ENV:
+        raise ValueError(f"env must be one of {sorted(STATE_BY_ENV)}, got {env!r}")
+    state = STATE_BY_ENV[env]
+    ncs = NCSConfig(state=state, clusters=CI_CLUSTERS if preset == "ci" else CLUSTERS_BY_ENV[env],
+                    edge_action=EDGE_ACTION_BY_ENV[env])
     if preset == "reduced":
-        env = "block-rearrange"
-        paths = {"model": shipped_asset(env, "ncs", "model"), "graph": shipped_asset(env, "ncs", "graph"),
-                 "oracle_graph": shipped_asset(env, "ncs-oracle", "graph"),
-                 "nf_graph": shipped_asset(env, "nf", "graph"),
-                 "nf_oracle_graph": shipped_asset(env, "nf-oracle", "graph"),
+        paths = {"model": shipped_asset(env, "ncs", "model"), "graph": shipped_asset(env, "ncs", "graph", state),
+                 "oracle_graph": shipped_asset(env, "ncs-oracle", "graph", state),
+                 "nf_graph": shipped_asset(env, "nf", "graph", state),
+                 "nf_oracle_graph": shipped_asset(env, "nf-oracle", "graph", state),
                  "bc": shipped_asset(env, "bc", "policy"), "iql": shipped_asset(env, "iql", "policy")}
-        return {"model": load_dslate(paths["model"]), "graph": TransitionGraph.load(paths["graph"]),
+        graph = TransitionGraph.load(paths["graph"])
+        return {"model": load_dslate(paths["model"]), "graph": graph,
                 "oracle_graph": TransitionGraph.load(paths["oracle_graph"]),
                 "nf_graph": SetGraph.load(paths["nf_graph"]), "nf_oracle_graph": SetGraph.load(paths["nf_oracle_graph"]),
                 "bc": load_trained_policy(paths["bc"], "bc"), "iql": load_trained_policy(paths["iql"], "iql"),
-                "paths": {k: str(v) for k, v in paths.items()}, "preset": preset}
-    model, model_path = obtain_dslate(preset, seed=seed)
-    data = cached_buffer(GRAPH_EPISODES[preset], seed=seed)
-    clusters = CLUSTERS[preset]
-    out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset}
+                "paths": {k: str(v) for k, v in paths.items()}, "preset": preset, "env": env,
+                "ncs": replace(ncs, clusters=graph.num_nodes)}
+    model, model_path = obtain_dslate(preset, seed=seed, env=env)
+    data = cached_buffer(GRAPH_EPISODES[preset], env=env, seed=seed)
+    out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset,
+           "env": env, "ncs": ncs}
     # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
-    for name, perception in (("", learned_perception(model, 4)), ("oracle_", OraclePerception())):
+    for name, perception in (("", learned_perception(model, 4, ncs)), ("oracle_", OraclePerception(ORACLE_STATES[state]))):
         st, st1, acts, true = buffer_transitions(perception, data)
-        graph = build_graph(st, st1, acts, clusters=clusters, seed=seed, true_entity=true)
+        graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
+                            edge_action=ncs.edge_action)
         out[f"{name}graph"] = graph
-        out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph)
+        out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph, state=state)
     for method in ("bc", "iql"):
-        out[method], path = obtain_policy(method, preset, seed)
+        out[method], path = obtain_policy(method, preset, seed, env=env)
         out["paths"][method] = str(path)
     return out
 
@@ -100,8 +112,9 @@ def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partia
             for label in methods:
                 method, needs = COMPARED[label]
                 n = (mpc_episodes or episodes) if method == "mpc" else episodes
-                tasks = TaskSet(num_objects=k, goal=goal, horizon_multiplier=horizon_multiplier, episodes=n, seed=seed)
-                kw = {"graph": next((assets[a] for a in needs if a.endswith("graph")), None),
+                tasks = TaskSet(env=assets.get("env", "block-rearrange"), num_objects=k, goal=goal,
+                                horizon_multiplier=horizon_multiplier, episodes=n, seed=seed)
+                kw = {"graph": next((assets[a] for a in needs if a.endswith("graph")), None), "ncs": assets.get("ncs"),
                       "model": assets["model"] if "model" in needs else None,
                       "policy": assets[method] if method in ("bc", "iql") else None,
                       "mpc": mpc if method == "mpc" else None, "seed": seed, "label": label, "cache": cache}

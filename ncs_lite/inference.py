@@ -42,10 +42,15 @@ _SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT
 ROBOGYM_CHECKPOINT = ASSETS / "dslate_robogym_rearrange_reduced.pt"
 ROBOGYM_SLOT_GRAPH = ASSETS / "graph_robogym_rearrange_reduced_slot.pt"
 ROBOGYM_POSITION_GRAPH = ASSETS / "graph_robogym_rearrange_oracle_position.pt"
+# ... and its baselines (`make robogym-baseline-assets`), NF bound by the two graphs above
+ROBOGYM_POLICIES = {"bc": ASSETS / "bc_robogym_rearrange_reduced.pt", "iql": ASSETS / "iql_robogym_rearrange_reduced.pt"}
+ROBOGYM_NF_GRAPH = ASSETS / "nf_graph_robogym_rearrange_reduced.pt"
+ROBOGYM_NF_ORACLE_GRAPH = ASSETS / "nf_graph_robogym_rearrange_oracle.pt"
 _SHIPPED = {
     "block-rearrange": {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES, "graph": _SHIPPED_GRAPHS},
-    "robogym-rearrange": {"model": ROBOGYM_CHECKPOINT, "policy": {},
-                          "graph": {("ncs", "slot"): ROBOGYM_SLOT_GRAPH, ("ncs-oracle", "slot"): ROBOGYM_POSITION_GRAPH}},
+    "robogym-rearrange": {"model": ROBOGYM_CHECKPOINT, "policy": ROBOGYM_POLICIES,
+                          "graph": {("ncs", "slot"): ROBOGYM_SLOT_GRAPH, ("ncs-oracle", "slot"): ROBOGYM_POSITION_GRAPH,
+                                    ("nf", "slot"): ROBOGYM_NF_GRAPH, ("nf-oracle", "slot"): ROBOGYM_NF_ORACLE_GRAPH}},
 }
 SHIPPED_ENVS = tuple(_SHIPPED)
 # 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)

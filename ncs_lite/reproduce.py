@@ -263,10 +263,11 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
-                    out_dir=None, allow_dirty: bool = False) -> dict:
-    """figures/tables/baselines_<preset>.csv: one row per method, goal kind and object count
-    (success, 95% Wilson interval, random-action share, mean steps), from the assets of
-    `comparison_assets(preset)`; the per-episode rows go beside it (`_episodes.csv`)."""
+                    out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange") -> dict:
+    """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv):
+    one row per method, goal kind and object count (success, 95% Wilson interval,
+    random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
+    the per-episode rows go beside it (`_episodes.csv`)."""
     import time
 
     from .comparison import EPISODES, MPC_EPISODES, comparison_assets, run_comparison
@@ -274,17 +275,17 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
 
     episodes = episodes or EPISODES[preset]
     mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
-    name = f"baselines_{preset}"
+    name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
     provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
-    assets = comparison_assets(preset)
+    assets = comparison_assets(preset, env=env)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
     keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "random_fraction",
             "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
              for r in summarize(rows)]
     write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
-    meta = {"preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
+    meta = {"env": env, "preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
             "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
                        if Path(v).is_file()},
             "minutes": round((time.perf_counter() - start) / 60, 1)}
@@ -369,6 +370,12 @@ def check_table_args(name: str, args) -> None:
                 RobogymRearrangeConfig(num_objects=k)
             except ValueError as exc:
                 raise ValueError(f"--objects {k}: {exc}") from None
+    from .ncs.graph import STATE_BY_ENV
+
+    if args.env not in STATE_BY_ENV:
+        raise ValueError(f"unknown --env {args.env!r}; expected one of {', '.join(STATE_BY_ENV)}")
+    if args.env != "block-rearrange" and name != "baselines":
+        raise ValueError(f"--env is for the baselines table; the {name} table has its own environment")
     if args.out_dir is not None:
         check_out_dir(args.out_dir, "table", flag="--out-dir")
 
@@ -383,7 +390,7 @@ def run_table(name: str, args) -> dict:
                               allow_dirty=args.allow_dirty)
     if name == "baselines":
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
-                               allow_dirty=args.allow_dirty)
+                               allow_dirty=args.allow_dirty, env=args.env)
     if name == "robogym":
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
                              checkpoint=args.checkpoint, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
@@ -405,6 +412,7 @@ def add_subcommand(subparsers) -> None:
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
     p.add_argument("--mpc-episodes", type=int, default=None,
                    help="baselines: MPC's tasks per object count (default: the preset's, reduced 10)")
+    p.add_argument("--env", default="block-rearrange", help="baselines: the environment (its shipped assets)")
     p.add_argument("--objects", type=int, nargs="+", default=None,
                    help="robogym: object counts to evaluate (default: 4 5 6 7)")
     p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")

@@ -61,3 +61,16 @@ def test_map_jobs_refuses_a_start_order_that_is_not_one():
 
     with pytest.raises(ValueError, match="first must order the 2 jobs' indices"):
         map_jobs(divmod, [(1,), (2,)], shared=7, workers=2, first=[0, 0])
+
+
+def test_robogym_comparison_runs_every_method_from_the_shipped_assets():
+    from ncs_lite.comparison import COMPARED, comparison_assets
+
+    assets = comparison_assets("reduced", env="robogym-rearrange")
+    assert assets["ncs"].state == "slot" and assets["ncs"].edge_action == "nearest" and assets["ncs"].clusters == 45
+    rows = run_comparison({**assets, "preset": "ci"}, counts=(4,), goals=("complete",), episodes=1, cache=False,
+                          workers=1)                                   # ci: a small CEM for MPC
+    assert sorted(r["method"] for r in rows) == sorted(COMPARED)
+    assert {r["env"] for r in rows} == {"robogym-rearrange"}
+    with pytest.raises(ValueError, match="env must be one of"):
+        comparison_assets("reduced", env="block-stacking")

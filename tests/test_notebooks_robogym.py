@@ -1,4 +1,4 @@
-"""Notebooks 04-06 on robogym-rearrange (issue 14): the library helpers they read the env
+"""Notebooks 04-07 on robogym-rearrange (issue 14): the library helpers they read the env
 through, and each notebook run end to end with `env = "robogym-rearrange"` at `ci`.
 
 nbmake runs every notebook at its default env (block-rearrange); papermill injects the
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ENV_NOTEBOOKS = ("04_dslate_training", "05_graph_construction", "06_action_selection")
+ENV_NOTEBOOKS = ("04_dslate_training", "05_graph_construction", "06_action_selection", "07_baselines")
 
 
 def test_colour_names_use_each_envs_palette():
