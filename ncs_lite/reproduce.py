@@ -411,7 +411,7 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--episodes", type=int, default=None,
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
     p.add_argument("--mpc-episodes", type=int, default=None,
-                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 10)")
+                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 25)")
     p.add_argument("--env", default="block-rearrange", help="baselines: the environment (its shipped assets)")
     p.add_argument("--objects", type=int, nargs="+", default=None,
                    help="robogym: object counts to evaluate (default: 4 5 6 7)")
