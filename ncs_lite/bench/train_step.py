@@ -23,6 +23,7 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from . import cpu_name
 from ..config import get_preset
 from ..models.dslate import DSlate
 from ..training import autocast, build_optimizer, resolve_device
@@ -133,19 +134,9 @@ def run(presets=("reduced", "paper"), videos: dict | None = None, repeats: int =
             "flops_per_second": flops / t, "matmul_peak_flops_per_second": peaks[precision],
             "fraction_of_peak": flops / t / peaks[precision],
         })
-    return {"device": str(device), "cpu": _cpu_name(), "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    return {"device": str(device), "cpu": cpu_name(), "cpu_capability": torch.backends.cpu.get_cpu_capability(),
             "threads": torch.get_num_threads(), "versions": package_versions(),
             "matmul_peak_flops_per_second": peaks, "steps": rows}
-
-
-def _cpu_name() -> str:
-    """The CPU's model name: peaks differ across machines (AMX or not), so record it."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        import platform
-        return platform.processor() or "unknown"
 
 
 def format_table(result: dict) -> str:
