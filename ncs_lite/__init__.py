@@ -16,6 +16,10 @@ ICLR 2023 (arXiv 2303.11373). The stages live in one subpackage each:
 """
 __version__ = "0.1.0"
 
+from .envs.headless import choose_gl as _choose_gl
+
+_choose_gl()   # MuJoCo's headless backend, before anything imports MuJoCo
+
 
 def __getattr__(name):
     # `ncs_lite.load_dslate` without importing torch for users of the environments alone.

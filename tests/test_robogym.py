@@ -1,5 +1,7 @@
 """Robogym-rearrange semantics: the object catalogue, overlap rules, pick and goal thresholds,
 orientation, determinism, bad input; and NCS's "nearest" edge actions on its continuous states."""
+import os
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -167,6 +169,20 @@ def test_a_render_failure_names_mujoco_gl_and_the_libraries(monkeypatch):
     monkeypatch.setattr(rr.mujoco, "Renderer", broken)
     with pytest.raises(RuntimeError, match="MUJOCO_GL.*EGL.*OSMesa"):
         make("robogym-rearrange", num_objects=1)
+
+
+def test_importing_mujoco_before_the_kit_is_named_in_the_render_error():
+    """MuJoCo fixes its GL backend at its first import: after `import ncs_lite` it is headless;
+    imported before, it keeps GLFW (needs a display), and the error says so and what to do."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY")}
+    make_it = "from ncs_lite.envs import make; make('robogym-rearrange', num_objects=1).close(); print('ok')"
+    for first, expect in (("import ncs_lite; import mujoco", "ok"),
+                          ("import mujoco", "mujoco was imported before ncs_lite")):
+        run = subprocess.run([sys.executable, "-c", f"{first}; {make_it}"], env=env, capture_output=True, text=True)
+        assert expect in run.stdout + run.stderr, (first, run.stderr[-800:])
 
 
 def test_nearest_edge_action_takes_the_closest_transition_and_the_next_on_retry():

@@ -19,40 +19,23 @@ Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored.
      table, with its orientation, and the physics settles for `settle_steps` steps.
 A constraint holds when its object is within `success_threshold` (x, y) of its goal.
 
-Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, this module
-picks EGL, then OSMesa, whichever library the system has; with neither, making the env
-fails with a message naming both (see `_renderer`).
+Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, importing
+ncs_lite picks EGL, then OSMesa, whichever library the system has (`headless.py`); with
+neither, making the env fails with a message naming both (see `_renderer`).
 """
 from __future__ import annotations
 
-import ctypes.util
 import os
-import sys
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from gymnasium import spaces
 
+import mujoco  # after ncs_lite/__init__.py chose MUJOCO_GL (envs/headless.py)
+
 from .common import RearrangeEnv, check_index, check_integer, check_number, check_task, constrained_count, horizon
+from .headless import render_failure_advice
 from .objects import COLOURS, OBJECTS, load_mesh
-
-GL_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
-
-
-def _choose_gl() -> str | None:
-    """Set MUJOCO_GL to the first headless backend whose library exists, unless it is set
-    already (or mujoco was imported already, which fixed it). Returns the choice."""
-    if "MUJOCO_GL" in os.environ or "mujoco" in sys.modules:
-        return os.environ.get("MUJOCO_GL")
-    for backend, lib in GL_LIBRARIES.items():
-        if ctypes.util.find_library(lib):
-            os.environ["MUJOCO_GL"] = backend
-            return backend
-    return None
-
-
-_GL = _choose_gl()
-import mujoco  # noqa: E402 - after MUJOCO_GL is chosen
 
 # The floor beyond the table has the table's colour and the light is directional (no
 # gradient): at `reduced`, slot attention gave one slot to the table and shared the rest
@@ -411,9 +394,6 @@ def _renderer(model, size: int):
     try:
         return mujoco.Renderer(model, size, size)
     except Exception as e:  # noqa: BLE001 - GL setup fails in many library-specific ways
-        found = {b: bool(ctypes.util.find_library(lib)) for b, lib in GL_LIBRARIES.items()}
         raise RuntimeError(
             f"robogym-rearrange could not render headless with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} "
-            f"({type(e).__name__}: {e}). It needs EGL (libEGL, found: {found['egl']}) or OSMesa "
-            f"(libOSMesa, found: {found['osmesa']}): install Mesa's (e.g. `apt install libegl1` or "
-            "`libosmesa6`) and set MUJOCO_GL=egl or MUJOCO_GL=osmesa before Python starts") from e
+            f"({type(e).__name__}: {e}). {render_failure_advice()}") from e
