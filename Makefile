@@ -42,7 +42,7 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
-	# notebooks 04-06 once more on robogym-rearrange (issue 14): same parameters but `env`; executed
+	# notebooks 04-07 once more on robogym-rearrange (issue 14): same parameters but `env`; executed
 	# copies <name>_robogym.ipynb, figures in figures/<name>/robogym-rearrange/, times as <name>_robogym
 	for nb in $(ENV_NOTEBOOKS); do \
 	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=robogym-rearrange)"; start=$$(date +%s.%N); \
