@@ -193,6 +193,15 @@ def test_nf_graph_cli_and_nf_oracle_on_the_harness(tmp_path, capsys):
     assert summarize(rows)[0]["episodes"] == 2
     assert main(["evaluate", "--method", "nf-oracle", "--graph", out, "--state", "slot", "--episodes", "1"]) == 2
     assert "built on 'mask' states" in capsys.readouterr().err
+    # bound by another graph's nodes, NF records that graph's node count; another --clusters is refused
+    bound = str(tmp_path / "nf_bound.pt")
+    assert main(["graph", "--oracle", "--data", data, "--clusters", "12", "--out", str(tmp_path / "nodes.pt")]) == 0
+    assert main(["graph-nf", "--oracle", "--data", data, "--bind-graph", str(tmp_path / "nodes.pt"), "--out", bound]) == 0
+    assert SetGraph.load(bound).info["ncs"]["clusters"] == 12
+    capsys.readouterr()
+    assert main(["graph-nf", "--oracle", "--data", data, "--bind-graph", str(tmp_path / "nodes.pt"),
+                 "--clusters", "16", "--out", str(tmp_path / "nf2.pt")]) == 2
+    assert "--clusters 16: the entities bind to --bind-graph's 12 nodes" in capsys.readouterr().err
 
 
 def test_a_task_set_is_one_key_whatever_the_number_type():

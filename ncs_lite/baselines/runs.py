@@ -159,7 +159,11 @@ def _graph_nf(args) -> None:
         raise ValueError("give exactly one of --checkpoint CKPT (learned NF) or --oracle")
     check_out_file(args.out, "NF graph")
     bind = TransitionGraph.load(args.bind_graph) if args.bind_graph else None
-    cfg = ncs_config(args.overrides, clusters=args.clusters, state=args.state or (bind.state if bind else None))
+    if bind is not None and args.clusters is not None and args.clusters != bind.num_nodes:
+        raise ValueError(f"--clusters {args.clusters}: the entities bind to --bind-graph's {bind.num_nodes} "
+                         "nodes; drop --clusters (it sets NF's own k-means, without --bind-graph)")
+    cfg = ncs_config(args.overrides, clusters=bind.num_nodes if bind else args.clusters,
+                     state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
