@@ -29,8 +29,9 @@ COMPARED = {
 }
 # tasks per goal kind and object count; MPC plans with 2,500 dynamics rollouts a step, so
 # `reduced` runs it on the first 25 tasks of each set: the whole comparison took 4.2 minutes
-# uncached (cf06f0a, two worker processes of one thread; robogym-rearrange 6.1), under its 20-minute budget; with 10,
-# MPC's 2 successes at 4 objects had the interval [0.06, 0.51], too wide to tell it from NCS
+# uncached (cf06f0a, two worker processes of one thread; robogym-rearrange 6.1), under its
+# 20-minute budget; with 10, MPC's 2 successes at 4 objects had the interval [0.06, 0.51],
+# too wide to tell it from NCS
 EPISODES = {"ci": 2, "reduced": 50, "paper": 100}
 MPC_EPISODES = {"ci": 1, "reduced": 25, "paper": 100}
 GRAPH_EPISODES = {"ci": 60, "reduced": 1000, "paper": 5000}   # buffer the graphs are built on (= notebooks 05-06)

@@ -4,10 +4,10 @@ Reference: a bare render loop over the same scene in the same run (`pybullet.get
 for block-rearrange; MuJoCo's `Renderer.update_scene` + `render` of the RGB image for
 robogym-rearrange). A block-rearrange step is one render plus bookkeeping, so the render is
 the floor of its cost; a robogym-rearrange step is an RGB pass, a segmentation pass (the
-masks of `info`) and the settle's physics, so its ratio is below 0.5 unless the second pass
-is cheaper than the first. `ratio_to_render` says how close to the floor an env runs;
-for robogym-rearrange `ratio_to_both_passes` is the same against a bare loop of the two passes
-its step must make (the env's own `_render`: RGB, then segmentation).
+masks of `info`) and the settle's physics. `ratio_to_render` says how close to the floor an
+env runs; for robogym-rearrange, `ms_per_call` times the parts of a step on the scene the
+steps left (both passes, the settle, the random action's free-spot search), and
+`ratio_to_both_passes` is the step rate against the two passes it must render.
 """
 from __future__ import annotations
 
@@ -31,15 +31,20 @@ def _rate(fn, seconds: float = 2.0) -> float:
     return n / elapsed
 
 
-def _measure(env, bare_render, targets: dict, seconds: float) -> dict:
-    """Random pick-and-move steps per second against `bare_render` calls per second."""
+def _measure(env, bare_render, targets: dict, seconds: float, parts: dict | None = None) -> dict:
+    """Random pick-and-move steps per second against `bare_render` calls per second; then
+    milliseconds per call of each of `parts` (name -> fn(env, rng)), on the scene the steps left."""
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     step_rate = _rate(lambda: env.step(env.random_pick_and_move(rng)), seconds)
     render_rate = _rate(bare_render, seconds)
+    out = {"transitions_per_s": round(step_rate, 1), "bare_render_per_s": round(render_rate, 1),
+           "ratio_to_render": round(step_rate / render_rate, 3), "targets": targets}
+    if parts:
+        out["ms_per_call"] = {"step": round(1e3 / step_rate, 3),
+                              **{name: round(1e3 / _rate(lambda: fn(env, rng), seconds), 3) for name, fn in parts.items()}}
     env.close()
-    return {"transitions_per_s": round(step_rate, 1), "bare_render_per_s": round(render_rate, 1),
-            "ratio_to_render": round(step_rate / render_rate, 3), "targets": targets}
+    return out
 
 
 def run(seconds: float = 2.0) -> dict:
@@ -57,14 +62,13 @@ def run(seconds: float = 2.0) -> dict:
         robogym._renderer.update_scene(robogym.data, "top", scene_option=robogym._scene_option)
         robogym._renderer.render()
 
-    both_passes = _rate(robogym._render, seconds)     # before _measure closes the env
-    out = {
-        "block-rearrange": _measure(block, bare_pybullet_render,
-                                    {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 300"}, seconds),
-        "robogym-rearrange": _measure(robogym, bare_mujoco_render,
-                                      {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"}, seconds),
-    }
-    rg = out["robogym-rearrange"]
+    parts = {"rgb_and_segmentation": lambda env, rng: env._render(), "settle": lambda env, rng: env._settle(),
+             "random_action": lambda env, rng: env.random_pick_and_move(rng)}
+    rg = _measure(robogym, bare_mujoco_render, {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"},
+                  seconds, parts)
+    both_passes = 1e3 / rg["ms_per_call"]["rgb_and_segmentation"]
     rg["bare_rgb_and_segmentation_per_s"] = round(both_passes, 1)
     rg["ratio_to_both_passes"] = round(rg["transitions_per_s"] / both_passes, 3)
-    return out
+    return {"block-rearrange": _measure(block, bare_pybullet_render,
+                                        {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 300"}, seconds),
+            "robogym-rearrange": rg}
