@@ -19,12 +19,18 @@ Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored.
      table, with its orientation, and the physics settles for `settle_steps` steps.
 A constraint holds when its object is within `success_threshold` (x, y) of its goal.
 
+Each object is one geom whose shape `_show` sets from a table of compiled shapes
+(`_shape_table`), and `TopCamera` renders the image and the masks with MuJoCo's low-level API;
+both were made faster than the first version (94 hidden geoms per object, `mujoco.Renderer`)
+without changing a bit of what the env returns (tests/test_robogym.py pins a digest).
+
 Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, importing
 ncs_lite picks EGL, then OSMesa, whichever library the system has (`headless.py`); with
 neither, making the env fails with a message naming both (see `_renderer`).
 """
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import asdict, dataclass
 
@@ -44,7 +50,10 @@ from .objects import COLOURS, OBJECTS, load_mesh
 TABLE_RGB = (0.55, 0.50, 0.45)
 FLOOR_RGB = TABLE_RGB
 ONE_HOT_SHAPES = np.eye(len(OBJECTS), dtype=np.float32)   # the shape half of info["types"]
-HIDDEN_GROUP = 5          # geoms of unused shapes, and of unconstrained objects in the goal image
+BACKDROP_GROUP = 1        # the floor: in the RGB pass, not in the segmentation pass
+HIDDEN_GROUP = 5          # unconstrained objects in the goal image
+# what makes a geom one shape or another; `_show` copies them from `_shape_table`
+SHAPE_FIELDS = ("type", "dataid", "size", "rbound", "aabb", "pos", "quat", "sameframe")
 
 
 @dataclass(frozen=True)
@@ -153,23 +162,20 @@ class RobogymRearrange(RearrangeEnv):
         img = spaces.Box(0, 255, (cfg.image_size, cfg.image_size, 3), np.uint8)
         self.observation_space = spaces.Dict({"image": img, "goal": img})
 
-        self._geometry = [object_geometry(e, cfg.object_size, f"shape{j}") for j, e in enumerate(OBJECTS)]
+        self._geometry, self._shape_fields = _shape_table(cfg.object_size)
         self._rest = np.array([g["rest"] for g in self._geometry])
         self._radius = np.array([g["radius"] for g in self._geometry])
-        self.model = mujoco.MjModel.from_xml_string(self._mjcf())
+        k = cfg.num_objects
+        self.model = mujoco.MjModel.from_xml_string(_mjcf(cfg, self._geometry, k))
         self.data = mujoco.MjData(self.model)
-        k, n = cfg.num_objects, len(OBJECTS)
-        # geom ids: _geom[i, j] = object slot i drawn as shape j
-        self._geom = np.array([[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"o{i}s{j}")
-                                for j in range(n)] for i in range(k)])
-        # collision filtering starts at the body level, fixed at compile from the geoms (all
-        # hidden then): objects must collide whatever shape they show
-        bodies = self.model.geom_bodyid[self._geom[:, 0]]
+        self._geom = np.array([self.model.geom(f"o{i}").id for i in range(k)])   # object i's one geom
+        # collision filtering starts at the body level, fixed at compile from the geoms (hidden
+        # then): objects must collide whatever shape they show
+        bodies = self.model.geom_bodyid[self._geom]
         self.model.body_contype[bodies] = 1
         self.model.body_conaffinity[bodies] = 1
+        self.model.stat.extent = _extent_over_shapes(self.model, self._geom, self._shape_fields)
         self._renderer = _renderer(self.model, cfg.image_size)
-        self._scene_option = mujoco.MjvOption()
-        self._scene_option.geomgroup[HIDDEN_GROUP] = 0
         self._shapes = np.zeros(k, np.int64)
         self._colors = COLOURS[:k].copy()
         self._yaw = np.zeros(k)
@@ -179,48 +185,15 @@ class RobogymRearrange(RearrangeEnv):
         self._steps = 0
 
     # ----------------------------------------------------------------- scene
-    def _mjcf(self) -> str:
-        cfg = self.config
-        hx, hy = cfg.table_x / 2, cfg.table_y / 2
-        t = np.radians(cfg.camera_tilt)
-        height = 1.0
-        # the view spans the table's long side plus a margin, seen from `height` at `tilt`
-        fovy = 2 * np.degrees(np.arctan((hy + 0.02) * np.cos(t) / height))
-        cam_pos = (0.0, -height * np.tan(t), height)
-        assets = "".join(g.get("asset", "") for g in self._geometry)
-        bodies = []
-        for i in range(cfg.num_objects):
-            geoms = "".join(f'<geom name="o{i}s{j}" {g["geom"]} group="{HIDDEN_GROUP}" contype="0" conaffinity="0"/>'
-                            for j, g in enumerate(self._geometry))
-            bodies.append(f'<body name="o{i}" pos="{i} 5 1"><freejoint/>'
-                          f'<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>{geoms}</body>')
-        return f"""<mujoco model="robogym-rearrange">
-  <compiler inertiafromgeom="false"/>
-  <option timestep="0.002"/>
-  <visual><quality shadowsize="0" offsamples="0"/>
-    <headlight ambient="0.55 0.55 0.55" diffuse="0 0 0" specular="0 0 0"/></visual>
-  <asset>{assets}</asset>
-  <worldbody>
-    <light directional="true" pos="0 0 2" dir="-0.3 0.3 -1" diffuse="0.45 0.45 0.45" specular="0 0 0" castshadow="false"/>
-    <geom name="floor" type="plane" size="3 3 0.1" pos="0 0 -0.4" rgba="{_fmt(FLOOR_RGB)} 1" contype="0" conaffinity="0"/>
-    <geom name="table" type="box" size="{hx} {hy} 0.02" pos="0 0 -0.02" rgba="{_fmt(TABLE_RGB)} 1"/>
-    <camera name="top" pos="{_fmt(cam_pos)}" xyaxes="1 0 0 0 {np.cos(t):.6f} {np.sin(t):.6f}" fovy="{fovy:.4f}"/>
-    {''.join(bodies)}
-  </worldbody>
-</mujoco>"""
-
     def _show(self, visible: np.ndarray) -> None:
-        """Make slot i show its shape (visible[i]) or nothing; only shown shapes collide."""
-        m = self.model
-        m.geom_group[self._geom] = HIDDEN_GROUP
-        m.geom_contype[self._geom] = 0
-        m.geom_conaffinity[self._geom] = 0
-        active = self._geom[np.arange(len(self._shapes)), self._shapes]
-        m.geom_rgba[active, :3] = self._colors
-        m.geom_rgba[active, 3] = 1.0
-        m.geom_group[active[visible]] = 0
-        m.geom_contype[active[visible]] = 1
-        m.geom_conaffinity[active[visible]] = 1
+        """Make object i's geom its shape, drawn (visible[i]) or not; only drawn objects collide."""
+        m, g = self.model, self._geom
+        for name in SHAPE_FIELDS:
+            getattr(m, f"geom_{name}")[g] = self._shape_fields[name][self._shapes]
+        m.geom_rgba[g, :3] = self._colors
+        m.geom_rgba[g, 3] = 1.0
+        m.geom_group[g] = np.where(visible, 0, HIDDEN_GROUP)
+        m.geom_contype[g] = m.geom_conaffinity[g] = visible.astype(m.geom_contype.dtype)
 
     def _set_pose(self, i: int, xy) -> None:
         q = self.data.qpos[7 * i: 7 * i + 7]
@@ -229,25 +202,14 @@ class RobogymRearrange(RearrangeEnv):
 
     def _settle(self) -> None:
         self.data.qvel[:] = 0.0
-        mujoco.mj_forward(self.model, self.data)
-        for _ in range(self.config.settle_steps):
-            mujoco.mj_step(self.model, self.data)
+        if self.config.settle_steps:      # (each step computes the kinematics the render reads)
+            mujoco.mj_step(self.model, self.data, nstep=self.config.settle_steps)
+        else:
+            mujoco.mj_kinematics(self.model, self.data)
 
     def _render(self):
-        """One RGB pass and one segmentation pass -> (H, W, 3) uint8, (k, H, W) bool masks."""
-        r = self._renderer
-        r.update_scene(self.data, "top", scene_option=self._scene_option)
-        rgb = r.render().copy()
-        r.enable_segmentation_rendering()
-        try:
-            r.update_scene(self.data, "top", scene_option=self._scene_option)
-            seg = r.render()
-        finally:
-            r.disable_segmentation_rendering()
-        active = self._geom[np.arange(len(self._shapes)), self._shapes]
-        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
-        masks = (seg[None, ..., 0] == active[:, None, None]) & is_geom[None]
-        return rgb, masks
+        """(H, W, 3) uint8 image, (k, H, W) bool masks of the objects."""
+        return self._renderer.render(self.data, self._geom)
 
     def positions(self) -> np.ndarray:
         """(k, 3) object centres (x, y, z) in metres."""
@@ -324,10 +286,14 @@ class RobogymRearrange(RearrangeEnv):
             return None
         offset = rng.uniform(0, pitch, 2)
         xs, ys = (np.arange(lo[i] + offset[i], -lo[i] + 1e-12, pitch) for i in range(2))
-        cand = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+        free = np.ones((len(xs), len(ys)), bool)     # the lattice, x-major
         for c, rc in zip(np.asarray(centres).reshape(-1, 2), np.asarray(radii).reshape(-1)):
-            cand = cand[((cand - c) ** 2).sum(1) >= (r + rc) ** 2]
-        return cand[rng.integers(len(cand))] if len(cand) else None
+            free &= (xs[:, None] - c[0]) ** 2 + (ys[None, :] - c[1]) ** 2 >= (r + rc) ** 2
+        cand = np.flatnonzero(free)
+        if not len(cand):
+            return None
+        i, j = divmod(int(cand[rng.integers(len(cand))]), len(ys))
+        return np.array([xs[i], ys[j]])
 
     def fits(self, obj: int, xy) -> bool:
         """Whether object `obj` can be put down at xy: on the table, clear of every other."""
@@ -389,10 +355,141 @@ class RobogymRearrange(RearrangeEnv):
         return {"env": "robogym-rearrange", **asdict(self.config)}
 
 
-def _renderer(model, size: int):
-    """A headless MuJoCo renderer, or a RuntimeError that says what to install or set."""
+def _shape_table_mjcf(geometry) -> str:
+    bodies = "".join(_object_body(j, g) for j, g in enumerate(geometry))
+    return f'<mujoco><compiler inertiafromgeom="false"/><asset>{_assets(geometry)}</asset><worldbody>{bodies}</worldbody></mujoco>'
+
+
+@functools.lru_cache(maxsize=4)
+def _shape_table(object_size: float):
+    """Each shape's geometry (`object_geometry`) and its compiled geom fields (SHAPE_FIELDS),
+    read from a model with one body per shape. An env's objects have one geom each, which
+    `_show` turns into any shape: 94 hidden geoms per object made every physics step 10x
+    dearer (MuJoCo's kinematics and collision loops visit every geom)."""
+    geometry = [object_geometry(e, object_size, f"shape{j}") for j, e in enumerate(OBJECTS)]
+    m = mujoco.MjModel.from_xml_string(_shape_table_mjcf(geometry))
+    ids = [m.geom(f"o{j}").id for j in range(len(OBJECTS))]
+    return geometry, {name: getattr(m, f"geom_{name}")[ids].copy() for name in SHAPE_FIELDS}
+
+
+def _extent_over_shapes(model, geoms: np.ndarray, fields: dict) -> float:
+    """MuJoCo's automatic `stat.extent` (the longest side of the box around every body and every
+    geom's bounding sphere but planes, at qpos0) with each object any of the shapes. The camera's
+    clip planes scale with it, so it must not depend on the shape an object was compiled with;
+    this is also the extent of the model that held every shape in every object (before 2026-12)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    points = [data.xpos[1:]]
+    for g in range(model.ngeom):
+        if g in geoms:       # the object's body, with every shape's offset and radius
+            centres = data.xpos[model.geom_bodyid[g]] + fields["pos"]
+            points += [centres - fields["rbound"][:, None], centres + fields["rbound"][:, None]]
+        elif model.geom_type[g] != mujoco.mjtGeom.mjGEOM_PLANE:
+            points += [data.geom_xpos[g] - model.geom_rbound[g], data.geom_xpos[g] + model.geom_rbound[g]]
+    points = np.concatenate([np.reshape(p, (-1, 3)) for p in points])
+    return float((points.max(0) - points.min(0)).max())
+
+
+def _assets(geometry) -> str:
+    # every shape's mesh, in one order, so a geom's mesh id means the same shape in each model
+    return "".join(g.get("asset", "") for g in geometry)
+
+
+def _object_body(i: int, g: dict) -> str:
+    # hidden at compile (no contact, no drawing): `_show` decides
+    return (f'<body name="o{i}" pos="{i} 5 1"><freejoint/>'
+            f'<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>'
+            f'<geom name="o{i}" {g["geom"]} group="{HIDDEN_GROUP}" contype="0" conaffinity="0"/></body>')
+
+
+def _mjcf(cfg: RobogymRearrangeConfig, geometry, k: int) -> str:
+    hx, hy = cfg.table_x / 2, cfg.table_y / 2
+    t = np.radians(cfg.camera_tilt)
+    height = 1.0
+    # the view spans the table's long side plus a margin, seen from `height` at `tilt`
+    fovy = 2 * np.degrees(np.arctan((hy + 0.02) * np.cos(t) / height))
+    cam_pos = (0.0, -height * np.tan(t), height)
+    size = cfg.image_size
+    return f"""<mujoco model="robogym-rearrange">
+  <compiler inertiafromgeom="false"/>
+  <option timestep="0.002"/>
+  <visual><quality shadowsize="0" offsamples="0"/><global offwidth="{size}" offheight="{size}"/>
+    <headlight ambient="0.55 0.55 0.55" diffuse="0 0 0" specular="0 0 0"/></visual>
+  <asset>{_assets(geometry)}</asset>
+  <worldbody>
+    <light directional="true" pos="0 0 2" dir="-0.3 0.3 -1" diffuse="0.45 0.45 0.45" specular="0 0 0" castshadow="false"/>
+    <geom name="floor" type="plane" size="3 3 0.1" pos="0 0 -0.4" rgba="{_fmt(FLOOR_RGB)} 1" contype="0" conaffinity="0" group="{BACKDROP_GROUP}"/>
+    <geom name="table" type="box" size="{hx} {hy} 0.02" pos="0 0 -0.02" rgba="{_fmt(TABLE_RGB)} 1"/>
+    <camera name="top" pos="{_fmt(cam_pos)}" xyaxes="1 0 0 0 {np.cos(t):.6f} {np.sin(t):.6f}" fovy="{fovy:.4f}"/>
+    {''.join(_object_body(i, geometry[0]) for i in range(k))}
+  </worldbody>
+</mujoco>"""
+
+
+class TopCamera:
+    """The image and the objects' masks from the fixed camera: an RGB pass, then a segmentation
+    pass of the objects and the table (which hides any part of an object that the settle left
+    below its top), each read back at once. MuJoCo's low-level API, as `mujoco.Renderer` uses
+    it (GL context, `MjrContext`, offscreen buffer), without its per-call allocations and its
+    second scene update. Both passes draw at the buffer's origin: drawn beside each other (one
+    read instead of two, 10 % faster) a few pixels where an object meets the table came out
+    differently from the separate passes the shipped data were made with."""
+
+    def __init__(self, model, size: int):
+        if model.ngeom >= 255:
+            raise ValueError(f"TopCamera reads a segment id from one byte: {model.ngeom} geoms are too many")
+        self.model, self.size = model, size
+        self._gl = self._context = None
+        self._gl = mujoco.GLContext(size, size)
+        self._gl.make_current()
+        self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._camera.fixedcamid = model.camera("top").id
+        self._options = mujoco.MjvOption(), mujoco.MjvOption()   # RGB; segmentation
+        for option in self._options:
+            option.geomgroup[HIDDEN_GROUP] = 0
+        self._options[1].geomgroup[BACKDROP_GROUP] = 0
+        self._scenes = mujoco.MjvScene(model, maxgeom=model.ngeom), mujoco.MjvScene(model, maxgeom=model.ngeom)
+        self._scenes[1].flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+        self._scenes[1].flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        self._rect = mujoco.MjrRect(0, 0, size, size)
+        self._pixels = np.empty((2, size, size, 3), np.uint8)
+
+    def render(self, data, geoms: np.ndarray):
+        """(H, W, 3) uint8 image and (len(geoms), H, W) bool masks of those geoms."""
+        if self._context is None:
+            raise ValueError("render() on a closed env; make a new one")
+        self._gl.make_current()
+        for option, scene, pixels in zip(self._options, self._scenes, self._pixels):
+            mujoco.mjv_updateScene(self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+            mujoco.mjr_render(self._rect, scene, self._context)
+            mujoco.mjr_readPixels(pixels, None, self._rect, self._context)
+        rgb, seg = self._pixels[:, ::-1]                 # OpenGL's rows run bottom up
+        # a pixel's id colour is 1 + its geom's segid (its index in the scene), red byte lowest;
+        # the scene holds under 256 geoms, so red alone names it
+        scene = self._scenes[1]
+        ids = np.full(len(geoms), -1, np.int16)
+        for g in scene.geoms[:scene.ngeom]:
+            if g.objtype == mujoco.mjtObj.mjOBJ_GEOM and g.segid >= 0:
+                ids[geoms == g.objid] = g.segid + 1
+        return rgb.copy(), seg[..., 0].astype(np.int16)[None] == ids[:, None, None]
+
+    def close(self) -> None:
+        if self._context is not None:
+            self._gl.make_current()
+            self._context.free()
+            self._context = None
+        if self._gl is not None:
+            self._gl.free()
+            self._gl = None
+
+
+def _renderer(model, size: int) -> TopCamera:
+    """A headless camera, or a RuntimeError that says what to install or set."""
     try:
-        return mujoco.Renderer(model, size, size)
+        return TopCamera(model, size)
     except Exception as e:  # noqa: BLE001 - GL setup fails in many library-specific ways
         raise RuntimeError(
             f"robogym-rearrange could not render headless with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} "
