@@ -79,24 +79,30 @@ baselines: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env robogym-rearrange
 
-# The shipped assets of the baselines and oracles, each made by one command from the same
-# buffers as the shipped graphs (1000 episodes) and dSLATE (5000); only missing files are made.
+# The shipped assets of the baselines and oracles, each made by one command from the buffer the
+# shipped dSLATE and graphs were made from (5000 episodes); only missing files are made.
 ASSETS      := ncs_lite/assets
-GRAPH_DATA  := .cache/buffers/block-rearrange-k4-e1000-s0-v1
 TRAIN_DATA  := .cache/buffers/block-rearrange-k4-e5000-s0-v1
+GRAPH_DATA  := $(TRAIN_DATA)
 BASELINE_ASSETS := $(ASSETS)/graph_block_rearrange_oracle.pt $(ASSETS)/graph_block_rearrange_oracle_position.pt \
   $(ASSETS)/nf_graph_block_rearrange_reduced.pt $(ASSETS)/nf_graph_block_rearrange_oracle.pt \
   $(ASSETS)/bc_block_rearrange_reduced.pt $(ASSETS)/iql_block_rearrange_reduced.pt
+BLOCK_GRAPHS := $(ASSETS)/graph_block_rearrange_reduced.pt $(ASSETS)/graph_block_rearrange_reduced_slot.pt
+.PHONY: block-graphs
+block-graphs: $(BLOCK_GRAPHS)
 baseline-assets: $(BASELINE_ASSETS)
-$(GRAPH_DATA)/manifest.json: | $(STAMP)
-	$(PY) -m ncs_lite collect --episodes 1000 --seed 0 --out $(GRAPH_DATA)
+$(ASSETS)/graph_block_rearrange_reduced.pt: | $(GRAPH_DATA)/manifest.json
+	$(PY) -m ncs_lite graph --checkpoint $(ASSETS)/dslate_block_rearrange_reduced.pt --data $(GRAPH_DATA) --clusters 30 --out $@
+$(ASSETS)/graph_block_rearrange_reduced_slot.pt: | $(GRAPH_DATA)/manifest.json
+	$(PY) -m ncs_lite graph --checkpoint $(ASSETS)/dslate_block_rearrange_reduced.pt --data $(GRAPH_DATA) --clusters 30 \
+	  --state slot --out $@
 $(TRAIN_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --episodes 5000 --seed 0 --out $(TRAIN_DATA)
 $(ASSETS)/graph_block_rearrange_oracle.pt: | $(GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --oracle --data $(GRAPH_DATA) --clusters 30 --out $@
 $(ASSETS)/graph_block_rearrange_oracle_position.pt: | $(GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --oracle --state slot --data $(GRAPH_DATA) --clusters 30 --out $@
-$(ASSETS)/nf_graph_block_rearrange_reduced.pt: | $(GRAPH_DATA)/manifest.json
+$(ASSETS)/nf_graph_block_rearrange_reduced.pt: | $(ASSETS)/graph_block_rearrange_reduced.pt
 	$(PY) -m ncs_lite graph-nf --checkpoint $(ASSETS)/dslate_block_rearrange_reduced.pt --data $(GRAPH_DATA) \
 	  --bind-graph $(ASSETS)/graph_block_rearrange_reduced.pt --out $@
 $(ASSETS)/nf_graph_block_rearrange_oracle.pt: | $(ASSETS)/graph_block_rearrange_oracle.pt

@@ -34,7 +34,11 @@ COMPARED = {
 # too wide to tell it from NCS
 EPISODES = {"ci": 2, "reduced": 50, "paper": 100}
 MPC_EPISODES = {"ci": 1, "reduced": 25, "paper": 100}
-GRAPH_EPISODES = {"ci": 60, "reduced": 1000, "paper": 5000}   # buffer the graphs are built on (= notebooks 05-06)
+# the buffer the graphs are built on (notebooks 05-06 and `reproduce` too): the training buffer
+# at `reduced`. As in the paper's Fig. 9, more data makes a better graph: the shipped model's
+# mask graph from the first 1,000 of its 5,000 episodes solved 0.92 / 0.82 of the 4 / 7-object
+# tasks (23 % / 36 % random fallbacks), from all 5,000 0.98 / 0.98 (6 % / 3 %)
+GRAPH_EPISODES = {"ci": 60, "reduced": 5000, "paper": 5000}
 CI_CLUSTERS = 8                                                 # ci's tiny buffer; else Table 4's
 
 

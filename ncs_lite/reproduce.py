@@ -113,7 +113,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
     100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
-    first `graph_episodes` (1,000) episodes (`clusters` nodes) and NCS success on `episodes`
+    first `graph_episodes` (`comparison.GRAPH_EPISODES`) episodes (`clusters` nodes) and NCS success on `episodes`
     seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
     is keyed by what it depends on); a run of another recipe in `runs` is refused. Hours on
     a CPU."""
@@ -126,11 +126,12 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .ncs.perception import DSlatePerception, buffer_transitions
     from .training import read_checkpoint, train
 
+    from .comparison import GRAPH_EPISODES
     from .inference import TRAIN_EPISODES
 
     runs = Path(runs) if runs else cache_dir() / "seeds"
     train_episodes = TRAIN_EPISODES[preset]
-    graph_episodes = graph_episodes or min(1000, train_episodes)
+    graph_episodes = graph_episodes or min(GRAPH_EPISODES[preset], train_episodes)
     images = images or (20 if preset == "ci" else 200)
     data = cached_buffer(train_episodes, env=env, num_objects=4, seed=0)
     rows = []
@@ -215,9 +216,10 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
 def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7), episodes: int = 100,
                    data=None, out_dir=None, allow_dirty: bool = False) -> dict:
     """NCS success against the number of nodes, on one checkpoint's states (default: the
-    shipped one and the 1,000-episode buffer its graph was built from). Slot inference over
+    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot inference over
     the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
     per point."""
+    from .comparison import GRAPH_EPISODES
     from .config import NCSConfig, to_dict
     from .data import cached_buffer, manifest_hash
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
@@ -227,7 +229,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
 
     checkpoint = Path(checkpoint or SHIPPED_CHECKPOINT)
     model = load_dslate(checkpoint)
-    data = Path(data) if data else cached_buffer(1000, num_objects=4, seed=0)
+    data = Path(data) if data else cached_buffer(GRAPH_EPISODES["reduced"], num_objects=4, seed=0)
     base = NCSConfig()
     perception = DSlatePerception(model, iterations=base.iterations, restarts=base.restarts)
     states_t, states_t1, actions, true_slot = buffer_transitions(perception, data)
