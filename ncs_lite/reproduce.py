@@ -113,8 +113,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
     100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
-    first `graph_episodes` (`comparison.GRAPH_EPISODES`) episodes (`clusters` nodes) and NCS success on `episodes`
-    seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
+    first `graph_episodes` (default `comparison.GRAPH_EPISODES`) episodes (`clusters` nodes)
+    and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
     is keyed by what it depends on); a run of another recipe in `runs` is refused. Hours on
     a CPU."""
     from .config import NCSConfig, apply_overrides, config_diff, get_preset, to_dict
@@ -216,8 +216,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
 def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7), episodes: int = 100,
                    data=None, out_dir=None, allow_dirty: bool = False) -> dict:
     """NCS success against the number of nodes, on one checkpoint's states (default: the
-    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot inference over
-    the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
+    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot
+    inference over the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
     per point."""
     from .comparison import GRAPH_EPISODES
     from .config import NCSConfig, to_dict

@@ -3,8 +3,8 @@
 Reference: a bare render loop over the same scene in the same run (`pybullet.getCameraImage`
 for block-rearrange; `mujoco.Renderer.update_scene` + `render` of the RGB image from the
 env's camera for robogym-rearrange). A block-rearrange step is one render plus bookkeeping, so
-the render is the floor of its cost; a robogym-rearrange step is an RGB pass and a
-segmentation pass (the masks of `info`) read back together, and the settle's physics.
+the render is the floor of its cost; a robogym-rearrange step is an RGB pass, a
+segmentation pass (the masks of `info`) and the settle's physics.
 `ratio_to_render` says how close to the floor an env runs; for robogym-rearrange,
 `ms_per_call` times the parts of a step on the scene the steps left (both passes, the settle,
 the random action's free-spot search), and `ratio_to_both_passes` is the step rate against

@@ -376,7 +376,7 @@ def _extent_over_shapes(model, geoms: np.ndarray, fields: dict) -> float:
     """MuJoCo's automatic `stat.extent` (the longest side of the box around every body and every
     geom's bounding sphere but planes, at qpos0) with each object any of the shapes. The camera's
     clip planes scale with it, so it must not depend on the shape an object was compiled with;
-    this is also the extent of the model that held every shape in every object (before 2026-12)."""
+    this is also the extent of the model that held every shape in every object (before 1deec9c)."""
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     points = [data.xpos[1:]]
@@ -439,7 +439,6 @@ class TopCamera:
         if model.ngeom >= 255:
             raise ValueError(f"TopCamera reads a segment id from one byte: {model.ngeom} geoms are too many")
         self.model, self.size = model, size
-        self._gl = self._context = None
         self._gl = mujoco.GLContext(size, size)
         self._gl.make_current()
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
