@@ -96,6 +96,11 @@ class MixtureConfig:
     #                             the reconstruction (1 = plain sum), see DSlate.mixture_error
     appearance: str = "slot"    # what a slot paints: "slot" = from the whole slot and the
     #                             position; "type" = one look from z alone (mixture_decoder.py)
+    error: str = "mixed"        # the reconstruction error: "mixed" = of the mixed image (Locatello
+    #                             et al.); "per_slot" = of each slot's own patches, weighted by
+    #                             its mixing weight (a mixture likelihood, as in MONet): two
+    #                             slots cannot blend their looks into a third colour, so a slot
+    #                             holding two cubes of different colours pays for one of them
     state_mask_weight: float = 0.0  # weight of the state-mask loss: each slot's mask drawn from
     #                             its state s alone against slot attention's (state_decoder.py);
     #                             0 = off. Makes s hold where the object is
@@ -206,6 +211,8 @@ class DSlateConfig:
         if self.image_size % self.slots.encoder_stride:
             raise ValueError(f"image_size ({self.image_size}) must be divisible by slots.encoder_stride "
                              f"({self.slots.encoder_stride})")
+        if self.mixture.error not in ("mixed", "per_slot"):
+            raise ValueError(f"mixture.error must be 'mixed' or 'per_slot', got {self.mixture.error!r}")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
         if self.slots.position_state and self.slots.state_dim < 4:

@@ -298,10 +298,17 @@ class DSlate(nn.Module):
         closest colour to the floor (0.23 against 0.30-0.89) and with the plain sum the
         floor's slot painted it in every image (notebook 03). The median colour is the
         floor's in these scenes (most pixels); no ground truth is read.
+        With `mixture.error = "per_slot"` each pixel's error is that of every slot's own
+        patch, weighted by the slot's mixing weight, instead of the mixed patch's.
         """
         p = self.cfg.image_size // self.mixture.grid
-        patches, _ = self.mixture(slots, attention)                    # (B, N, p*p*3)
-        err = (patches - patchify(x, p)).pow(2)                        # (B, N, p*p*3)
+        target = patchify(x, p)                                        # (B, N, p*p*3)
+        if self.cfg.mixture.error == "per_slot":
+            patches, alpha = self.mixture.paint(slots, attention)      # (B, K, N|1, c), (B, K, N)
+            err = (alpha[..., None] * (patches - target[:, None]).pow(2)).sum(1)   # (B, N, c)
+        else:
+            patches, _ = self.mixture(slots, attention)                # (B, N, p*p*3)
+            err = (patches - target).pow(2)                            # (B, N, p*p*3)
         w = self.cfg.mixture.foreground_weight if foreground_weight is None else foreground_weight
         if w != 1.0:
             far = foreground(x).expand_as(x).to(err.dtype)             # (B, H, W, 3)

@@ -61,22 +61,29 @@ class MixtureDecoder(nn.Module):
         # one hidden layer: it runs at K x N positions, the largest activations of the step
         self.mlp = nn.Sequential(nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))
 
-    def forward(self, slots: torch.Tensor, attention: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        """slots (B, K, D) [, attention (B, K, N) for alpha "attention"] -> (mixed patches
-        (B, N, p*p*3), alpha (B, K, N) summing to 1 over K)."""
+    def paint(self, slots: torch.Tensor, attention: torch.Tensor | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """What each slot paints, before mixing: slots (B, K, D) [, attention (B, K, N) for
+        alpha "attention"] -> (patches (B, K, N, p*p*3), or (B, K, 1, p*p*3) for "type": one
+        look everywhere; alpha (B, K, N) summing to 1 over K)."""
         K, N = slots.shape[1], self.grid ** 2
         if self.alpha == "attention" and (attention is None or attention.shape[1:] != (K, N)):
             got = None if attention is None else tuple(attention.shape)
             raise ValueError(f"alpha 'attention' needs attention of shape (B, {K}, {N}), got {got}")
         if self.appearance == "type":                                 # one look per slot
             look = self.mlp(self.inp(slots[..., :self.type_dim])).float()   # (B, K, p*p*3)
-            alpha = attention.float()
-            return torch.einsum("bkn,bkc->bnc", alpha, look), alpha
+            return look[:, :, None], attention.float()
         h = self.inp(slots)[:, :, None] + self.pos[:, None]          # (B, K, N, hidden)
         out = self.mlp(h).float()                                     # (B, K, N, p*p*3 [+ 1])
         if self.alpha == "decoder":
-            alpha, pixels = torch.softmax(out[..., -1], dim=1), out[..., :-1]
-        else:
-            alpha, pixels = attention.float(), out
-        return (alpha[..., None] * pixels).sum(1), alpha
+            return out[..., :-1], torch.softmax(out[..., -1], dim=1)
+        return out, attention.float()
+
+    def forward(self, slots: torch.Tensor, attention: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """slots (B, K, D) [, attention (B, K, N) for alpha "attention"] -> (mixed patches
+        (B, N, p*p*3), alpha (B, K, N) summing to 1 over K)."""
+        patches, alpha = self.paint(slots, attention)
+        if self.appearance == "type":
+            return torch.einsum("bkn,bkc->bnc", alpha, patches[:, :, 0]), alpha
+        return (alpha[..., None] * patches).sum(1), alpha
