@@ -127,6 +127,9 @@ class TrainConfig:
     polish_steps: int = 0
     polish_lr: float = 2e-4
     polish_foreground_weight: float = 20.0
+    polish_mixture_error: str = "mixed"  # the mixture error of the polish steps (see
+    #                             MixtureConfig.error): "per_slot" there splits slots that
+    #                             blend two similar colours, once the cubes have slots
     # dynamics phase (kit, not in the paper; see `reduced`): steps after the polish that train
     # the dynamics alone, on the latent loss against frame t+1's states, with every other
     # part frozen and the slots read as NCS reads them (eval_iterations). Jointly, ce_dyn's
@@ -211,8 +214,11 @@ class DSlateConfig:
         if self.image_size % self.slots.encoder_stride:
             raise ValueError(f"image_size ({self.image_size}) must be divisible by slots.encoder_stride "
                              f"({self.slots.encoder_stride})")
-        if self.mixture.error not in ("mixed", "per_slot"):
-            raise ValueError(f"mixture.error must be 'mixed' or 'per_slot', got {self.mixture.error!r}")
+        from .models.mixture_decoder import ERRORS
+
+        for name in ("mixture.error", "train.polish_mixture_error"):
+            if _field(self, name) not in ERRORS:
+                raise ValueError(f"{name} must be 'mixed' or 'per_slot', got {_field(self, name)!r}")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
         if self.slots.position_state and self.slots.state_dim < 4:

@@ -447,7 +447,8 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 else:
                     out = forward(frames, actions, tau, dvae_only=dvae_only,
                                   foreground_weight=cfg.train.polish_foreground_weight if polishing else None,
-                                  mixture_videos=augmented)
+                                  mixture_videos=augmented,
+                                  mixture_error=cfg.train.polish_mixture_error if polishing else None)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 _non_finite("loss", loss, step, out_path, last_saved)

@@ -5,6 +5,7 @@ import re
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from ncs_lite.config import (DSlateConfig, config_diff, from_dict, get_preset, table2_rows,
                              to_dict)
@@ -261,6 +262,32 @@ def test_mixture_error_weights_pixels_far_from_the_median_colour():
     assert torch.allclose(weighted, plain + 4 * cube, rtol=1e-4)
     with pytest.raises(ValueError, match="foreground_weight must be >= 1, got 0.5"):
         cfg.mixture.foreground_weight = 0.5
+        cfg.validate()
+
+
+def test_per_slot_error_charges_blended_looks_and_equals_the_mixed_error_on_hard_masks():
+    """mixture.error "per_slot": sum over slots of alpha_k |look_k - x|^2. Two slots whose looks
+    average to a cube's colour explain it at no cost under "mixed" and pay under "per_slot"."""
+    torch.manual_seed(0)
+    cfg = tiny_cfg()
+    cfg.mixture.appearance, cfg.mixture.foreground_weight = "type", 1.0
+    m = DSlate(cfg).eval()
+    x = torch.rand(2, 64, 64, 3)
+    r = m.infer((x * 255).round().to(torch.uint8))
+    soft = torch.softmax(torch.randn_like(r.attention) * 3, dim=1)
+    hard = F.one_hot(soft.argmax(1), soft.shape[1]).movedim(-1, 1).float()
+    mixed = m.mixture_error(x, r.slots, soft)
+    m.cfg.mixture.error = "per_slot"
+    per_slot = m.mixture_error(x, r.slots, soft)
+    assert (per_slot > mixed).all()                     # Jensen: the looks' spread is charged
+    looks, alpha = m.mixture.paint(r.slots, soft)
+    target = patchify(x, 64 // m.mixture.grid)
+    assert torch.allclose(per_slot, (alpha[..., None] * (looks - target[:, None]).pow(2)).sum((1, 2, 3)))
+    on_hard = m.mixture_error(x, r.slots, hard)
+    m.cfg.mixture.error = "mixed"
+    assert torch.allclose(on_hard, m.mixture_error(x, r.slots, hard), rtol=1e-5)
+    with pytest.raises(ValueError, match="mixture.error must be 'mixed' or 'per_slot', got 'sum'"):
+        cfg.mixture.error = "sum"
         cfg.validate()
 
 

@@ -73,18 +73,20 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
     weights, forward = [], DSlate.forward
 
     def spy(self, *args, **kwargs):
-        weights.append(kwargs.get("foreground_weight"))
+        weights.append((kwargs.get("foreground_weight"), kwargs.get("mixture_error")))
         return forward(self, *args, **kwargs)
 
     monkeypatch.setattr(DSlate, "forward", spy)
     after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=main + 2),
                        weights_only=True)
     assert after["step"] == main + 2
-    assert weights == [cfg.train.polish_foreground_weight] * 2
+    assert weights == [(cfg.train.polish_foreground_weight, cfg.train.polish_mixture_error)] * 2
     assert all(torch.equal(before[k], after["model"][k]) for k in before if k.startswith("dvae."))
     assert not torch.equal(before["slot_attn.mu"], after["model"]["slot_attn.mu"])
     with pytest.raises(ValueError, match="polish_steps must be >= 0"):
         ci(polish_steps=-1).validate()
+    with pytest.raises(ValueError, match="train.polish_mixture_error must be 'mixed' or 'per_slot', got 'blend'"):
+        ci(polish_mixture_error="blend").validate()
 
 
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):

@@ -46,7 +46,7 @@ from torch import nn
 from .decoder import TransformerDecoder
 from .dvae import DVAE, patchify, unpatchify
 from .dynamics import Dynamics
-from .mixture_decoder import MixtureDecoder
+from .mixture_decoder import ERRORS as MIXTURE_ERRORS, MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
 from .slot_attention import SlotAttention
@@ -199,13 +199,13 @@ class DSlate(nn.Module):
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
                 dvae_only: bool = False, foreground_weight: float | None = None,
-                mixture_videos: torch.Tensor | None = None) -> dict:
+                mixture_videos: torch.Tensor | None = None, mixture_error: str | None = None) -> dict:
         """videos (B, T, H, W, 3) uint8, actions (B, T-1, A) -> dict of scalar losses.
 
         dvae_only: compute the dVAE reconstruction alone (ce = ce_dyn = 0), for a warm-up
         phase that gives the transformer stable tokens (see TrainConfig.dvae_warmup_steps).
-        foreground_weight: overrides `mixture.foreground_weight` (the polish phase's, see
-        TrainConfig.polish_steps).
+        foreground_weight, mixture_error: override `mixture.foreground_weight` and
+        `mixture.error` (the polish phase's, see TrainConfig.polish_steps).
         mixture_videos: videos (B, T, H, W, 3) uint8 for the mixture loss alone, e.g. `videos`
         colour-augmented (TrainConfig.color_augment): slot attention then learns its masks
         from them, and the decoder and dynamics read slots of `videos` (without gradient
@@ -256,7 +256,7 @@ class DSlate(nn.Module):
                 xm = mixture_videos.flatten(0, 1).float() / 255.0
                 mslots, mattn = self._inputs_to_slots(self._slot_inputs(xm), T)
             out["mix"] = self.mixture_error(xm, mslots.flatten(0, 1), mattn.flatten(0, 1),
-                                            foreground_weight).mean()
+                                            foreground_weight, mixture_error).mean()
             loss = loss + self.cfg.mixture.weight * out["mix"]
         if self.state_masks is not None:
             # a read-out: its gradient stops at s (through slot attention it collapsed the
@@ -287,9 +287,10 @@ class DSlate(nn.Module):
         return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
 
     def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor,
-                      foreground_weight: float | None = None) -> torch.Tensor:
+                      foreground_weight: float | None = None, error: str | None = None) -> torch.Tensor:
         """The mixture decoder's reconstruction error per image (B,): x (B, H, W, 3) in [0, 1],
-        slots (B, K, D), attention (B, K, N'); `foreground_weight` defaults to the config's.
+        slots (B, K, D), attention (B, K, N'); `foreground_weight` and `error` default to the
+        config's (`mixture.foreground_weight`, `mixture.error`).
 
         A summed squared error, with pixels whose colour is far (> FOREGROUND_DISTANCE in RGB)
         from the image's median colour weighted by `mixture.foreground_weight`. Why: a cube
@@ -298,12 +299,16 @@ class DSlate(nn.Module):
         closest colour to the floor (0.23 against 0.30-0.89) and with the plain sum the
         floor's slot painted it in every image (notebook 03). The median colour is the
         floor's in these scenes (most pixels); no ground truth is read.
-        With `mixture.error = "per_slot"` each pixel's error is that of every slot's own
-        patch, weighted by the slot's mixing weight, instead of the mixed patch's.
+        With error "per_slot" each pixel's error is that of every slot's own patch, weighted
+        by the slot's mixing weight, instead of the mixed patch's: two slots can then no
+        longer share two cubes by blending their looks into both colours.
         """
+        error = self.cfg.mixture.error if error is None else error
+        if error not in MIXTURE_ERRORS:
+            raise ValueError(f"error must be one of {MIXTURE_ERRORS}, got {error!r}")
         p = self.cfg.image_size // self.mixture.grid
         target = patchify(x, p)                                        # (B, N, p*p*3)
-        if self.cfg.mixture.error == "per_slot":
+        if error == "per_slot":
             patches, alpha = self.mixture.paint(slots, attention)      # (B, K, N|1, c), (B, K, N)
             err = (alpha[..., None] * (patches - target[:, None]).pow(2)).sum(1)   # (B, N, c)
         else:
@@ -390,10 +395,12 @@ class DSlate(nn.Module):
         """How badly slots explain their images, per image (B,): lower is better.
 
         x (B, H, W, 3) in [0, 1]. With a mixture decoder: its summed squared pixel error (the
-        `mix` loss); without one (the paper's model): the decoder's token cross-entropy of the
+        `mix` loss, scored as the polish steps score it when there are any); without one (the paper's model): the decoder's token cross-entropy of the
         dVAE's tokens, teacher-forced (the `ce` loss). Used to rank restarts in `infer`."""
-        if self.mixture is not None:
-            return self.mixture_error(x, slots, attention)
+        if self.mixture is not None:       # the error the slots were trained on last
+            t = self.cfg.train
+            return self.mixture_error(x, slots, attention,
+                                      error=t.polish_mixture_error if t.polish_steps else None)
         ids = self.dvae.tokenize(x)                                     # (B, N)
         logits = self.decoder(self._embed(ids), slots.to(self.pos_emb.dtype))  # (B, N, V)
         return F.cross_entropy(logits.float().transpose(1, 2), ids, reduction="none").sum(1)

@@ -41,6 +41,7 @@ __all__ = ["MixtureDecoder"]
 
 ALPHAS = ("decoder", "attention")
 APPEARANCES = ("slot", "type")
+ERRORS = ("mixed", "per_slot")     # how DSlate.mixture_error scores the paint (MixtureConfig.error)
 
 
 class MixtureDecoder(nn.Module):
