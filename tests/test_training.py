@@ -173,10 +173,10 @@ def test_schedules_and_batch_order():
     red = get_preset("reduced")
     main = red.train.main_steps()
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
-    assert red.train.polish_end() == main + red.train.polish_steps == 3100
-    assert red.train.total_steps() == 3100 + red.train.dynamics_steps == 5100
+    assert red.train.polish_end() == main + red.train.polish_steps == 3700
+    assert red.train.total_steps() == 3700 + red.train.dynamics_steps == 5700
     assert lr_at(main, red) == lr_at(red.train.polish_end() - 1, red) == red.train.polish_lr
-    assert lr_at(3100, red) == lr_at(5099, red) == red.train.dynamics_lr
+    assert lr_at(3700, red) == lr_at(5699, red) == red.train.dynamics_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
