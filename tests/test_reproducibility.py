@@ -359,7 +359,7 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     legacy = variant(dslate, "legacy.pt", lambda c: c.pop("kind"), digest=False)
     assert not {"kind", "content_digest"} & set(torch.load(legacy, weights_only=True))
     assert load_dslate(legacy).checkpoint_info["step"] > 0
-    assert "content_digest" in torch.load(SHIPPED_CHECKPOINT, weights_only=True)   # written by --extend
+    assert "content_digest" in torch.load(SHIPPED_CHECKPOINT, weights_only=True)   # the shipped file is digested
     assert load_dslate(SHIPPED_CHECKPOINT).checkpoint_info["step"] > 0
     for method, path in SHIPPED_POLICIES.items():
         assert load_trained_policy(path, method).step > 0
