@@ -126,7 +126,7 @@ RG_ASSETS := $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(ASSETS)/graph_robog
 robogym-assets: $(RG_ASSETS)
 $(RG_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 5000 --seed 0 --out $(RG_DATA)
-# trained before the per-slot polish (`reduced` since b88e16b): these overrides remake the shipped file
+# trained before the per-slot polish (`reduced` since 17ffe74): these overrides remake the shipped file
 RG_RECIPE := --set train.polish_steps=600 --set train.polish_mixture_error=mixed
 $(ASSETS)/dslate_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
 	$(PY) -m ncs_lite train --env robogym-rearrange --preset reduced $(RG_RECIPE) --data $(RG_DATA) --out $@ --seed 0

@@ -218,7 +218,7 @@ class DSlateConfig:
 
         for name in ("mixture.error", "train.polish_mixture_error"):
             if _field(self, name) not in ERRORS:
-                raise ValueError(f"{name} must be 'mixed' or 'per_slot', got {_field(self, name)!r}")
+                raise ValueError(f"{name} must be {' or '.join(map(repr, ERRORS))}, got {_field(self, name)!r}")
         if self.mixture.alpha not in ("decoder", "attention"):
             raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
         if self.slots.position_state and self.slots.state_dim < 4:
@@ -418,9 +418,10 @@ def _reduced() -> DSlateConfig:
       notebook 04 and the README give the numbers).
     * a polish of 1,200 steps, not 600, that scores the mixture per slot
       (`train.polish_mixture_error = "per_slot"`): with the mixed image's error two seeds of
-      three gave one slot to two cubes of near colours (orange and yellow) in 22 % / 20 % of
-      7-object cubes, its look between the two and blended by the other slots' weights into
-      each; NCS then solved 0.35 / 0.29 of the 7-object tasks (seed 0: 0.98). Per slot, a
+      three left 17 % / 18 % of the cubes without a slot of their own, often one slot for two
+      cubes of near colours (orange and yellow), its look between the two and blended by the
+      other slots' weights into each; NCS then solved 0.35 / 0.29 of the 7-object tasks
+      (seed 0: 0.98; docs/HISTORY.md). Per slot, a
       slot pays for every colour it does not paint itself. From the first step it left one
       colour in the floor's slot (14 % of cubes, seed 1), so it is the polish's alone.
     The dVAE, the SLATE decoder, the dynamics' architecture and the paper's losses are kept.
