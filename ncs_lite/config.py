@@ -104,6 +104,10 @@ class MixtureConfig:
     state_mask_weight: float = 0.0  # weight of the state-mask loss: each slot's mask drawn from
     #                             its state s alone against slot attention's (state_decoder.py);
     #                             0 = off. Makes s hold where the object is
+    render_hidden: int = 0      # width of the renderer's MLP (state_decoder.py): each slot's mask
+    #                             drawn from its state s for `DSlate.render`, fitted to the
+    #                             frames in the render phase (TrainConfig.render_steps); 0 = none
+    #                             (render then draws the state-mask decoder's masks)
 
 
 @dataclass
@@ -136,6 +140,12 @@ class TrainConfig:
     # gradient drowns the latent loss: the dynamics then predicts no change
     dynamics_steps: int = 0
     dynamics_lr: float = 1e-3
+    # render phase (kit, not in the paper; see `reduced`): steps after the dynamics phase that
+    # fit the renderer (MixtureConfig.render_hidden) to the frames through the frozen mixture
+    # decoder, a pixel loss on slots read as NCS reads them; nothing else moves. The state-mask
+    # decoder's masks, fitted to slot attention's, render nearly empty floor (notebook 04)
+    render_steps: int = 0
+    render_lr: float = 1e-3
     # colour augmentation of the segmentation path (kit, not in the paper; data/augment.py):
     # "none" or "channels" = the mixture loss reads each video with its RGB channels in a
     # random order; the decoder, dynamics and dVAE read the true colours
@@ -149,9 +159,13 @@ class TrainConfig:
         """The step at which the polish ends and the dynamics phase begins."""
         return self.main_steps() + self.polish_steps
 
-    def total_steps(self) -> int:
-        """Optimizer steps of a full run: the schedule, the polish, the dynamics phase."""
+    def dynamics_end(self) -> int:
+        """The step at which the dynamics phase ends and the render phase begins."""
         return self.polish_end() + self.dynamics_steps
+
+    def total_steps(self) -> int:
+        """Optimizer steps of a full run: the schedule, the polish, the dynamics and render phases."""
+        return self.dynamics_end() + self.render_steps
 
 
 @dataclass
@@ -240,6 +254,12 @@ class DSlateConfig:
         if self.mixture.state_mask_weight > 0 and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
             raise ValueError("mixture.state_mask_weight > 0 learns slot attention's masks from s and "
                              "needs the mixture decoder (mixture.weight > 0) with mixture.alpha 'attention'")
+        if self.mixture.render_hidden and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
+            raise ValueError("mixture.render_hidden > 0 draws masks for the mixture decoder to paint and "
+                             "needs it (mixture.weight > 0) with mixture.alpha 'attention'")
+        if self.train.render_steps and not self.mixture.render_hidden:
+            raise ValueError("train.render_steps > 0 fits the renderer, but mixture.render_hidden is 0 "
+                             "(no renderer)")
         if self.train.precision not in ("auto", "bf16", "fp32"):
             raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
         from .data.augment import COLOR_AUGMENTS
@@ -278,11 +298,13 @@ _AT_LEAST = {
     "dynamics.heads": 1, "dynamics.hidden": 1, "mixture.hidden": 1, "train.epochs": 1,
     "train.episodes_per_epoch": 1, "train.batch_size": 1, "train.warmup_steps": 0,
     "train.dvae_warmup_steps": 0, "train.checkpoint_every": 1, "train.seed": 0, "train.dynamics_steps": 0,
+    "train.render_steps": 0, "mixture.render_hidden": 0,
 }
 # float fields: (low, high, what is expected): low < value when high is None, else low <= value < high
 _IN_RANGE = {
     "dvae.tau_start": (0.0, None, "> 0"), "dvae.tau_end": (0.0, None, "> 0"), "dvae.lr": (0.0, None, "> 0"),
     "train.lr": (0.0, None, "> 0"), "train.grad_clip": (0.0, None, "> 0"), "train.dynamics_lr": (0.0, None, "> 0"),
+    "train.render_lr": (0.0, None, "> 0"),
     "decoder.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.token_dropout": (0.0, 1.0, "in [0, 1)"),
     "dynamics.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.slot_grad": (0.0, math.inf, ">= 0"),
     "mixture.weight": (0.0, math.inf, ">= 0"),
@@ -409,6 +431,11 @@ def _reduced() -> DSlateConfig:
       0.44 ± 0.09 of held-out transitions (3 seeds, figures/tables/seeds_reduced.csv): the
       next frame's token cross-entropy (about 37 nats) drowns it. With the phase added to
       the shipped checkpoint (`train --extend`): 0.75 (figures/tables/shipped).
+    * 4,000 render steps after the dynamics phase (`train.render_steps`): a renderer
+      (`mixture.render_hidden`, state_decoder.py) fitted to the frames through the frozen
+      mixture decoder, every other part frozen, so that `DSlate.render` draws the cubes: the
+      state-mask head, fitted to slot attention's soft masks, rendered nearly empty floor
+      (foreground error 0.29 ± 0.05 against the empty floor's 0.36, docs/HISTORY.md).
     * 6 slots, not 5, and the mixture loss on colour-permuted videos
       (`train.color_augment = "channels"`, data/augment.py): with 5 slots and true colours
       every run ended with one colour always in the floor's slot (its attention there
@@ -442,12 +469,13 @@ def _reduced() -> DSlateConfig:
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=2, heads=4, hidden=64, dropout=0.0, latent_weight=1.0),
         mixture=MixtureConfig(weight=1.0, hidden=64, alpha="attention", foreground_weight=5.0,
-                              appearance="type", state_mask_weight=1.0),
+                              appearance="type", state_mask_weight=1.0, render_hidden=64),
         train=TrainConfig(epochs=8, episodes_per_epoch=5_000, window=2, batch_size=16, lr=1e-3,
                           warmup_steps=100, lr_decay="cosine", dvae_warmup_steps=600,
                           precision="fp32", checkpoint_every=250, polish_steps=1200, polish_lr=2e-4,
                           polish_foreground_weight=20.0, polish_mixture_error="per_slot",
-                          dynamics_steps=2000, dynamics_lr=1e-3, color_augment="channels"),
+                          dynamics_steps=2000, dynamics_lr=1e-3, render_steps=4000, render_lr=1e-3,
+                          color_augment="channels"),
     )
 
 
@@ -463,11 +491,11 @@ def _ci() -> DSlateConfig:
                               slot_grad=0.0),
         dynamics=DynamicsConfig(layers=1, heads=2, hidden=16, dropout=0.1, latent_weight=1.0),
         mixture=MixtureConfig(weight=1.0, hidden=16, alpha="attention", foreground_weight=5.0,
-                              appearance="type", state_mask_weight=0.1),
+                              appearance="type", state_mask_weight=0.1, render_hidden=8),
         train=TrainConfig(epochs=1, episodes_per_epoch=16, window=2, batch_size=4, lr=1e-3,
                           warmup_steps=2, dvae_warmup_steps=1, precision="fp32",
                           checkpoint_every=2, polish_steps=2, polish_mixture_error="per_slot",
-                          dynamics_steps=2, color_augment="channels"),
+                          dynamics_steps=2, render_steps=2, color_augment="channels"),
     )
 
 

@@ -115,9 +115,10 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
     first `graph_episodes` (default `comparison.GRAPH_EPISODES`) episodes (`clusters` nodes)
     and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
-    is keyed by what it depends on); a run of another recipe in `runs` is refused. Hours on
+    is keyed by what it depends on); a run of another recipe in `runs` is refused, one that
+    lacks only the recipe's later phases (e.g. the render phase) is kept and extended. Hours on
     a CPU."""
-    from .config import NCSConfig, apply_overrides, config_diff, get_preset, to_dict
+    from .config import NCSConfig, apply_overrides, get_preset, to_dict
     from .data import cached_buffer, load_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
@@ -141,12 +142,13 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         cfg = apply_overrides(get_preset(preset), overrides)
         cfg.train.seed = int(seed)
         if ckpt_path.exists():
-            differ = config_diff(read_checkpoint(ckpt_path)["config"], to_dict(cfg))
-            if differ:
-                raise ValueError(f"{ckpt_path} was trained with another recipe ({'; '.join(differ[:4])}); "
-                                 "give another --runs folder or delete that run")
+            _keep_for_extending(ckpt_path, cfg)
+        bases = sorted(folder.glob("dslate-step-*.pt"), key=lambda p: int(p.stem.rsplit("-", 1)[1]))
         done = ckpt_path.exists() and int(read_checkpoint(ckpt_path)["step"]) >= cfg.train.total_steps()
-        if not done:
+        if not done and not ckpt_path.exists() and bases:
+            print(f"seed {seed}: extending {bases[-1]} -> {ckpt_path}", flush=True)
+            train(cfg, data, ckpt_path, extend=bases[-1], env=env, overrides=overrides)
+        elif not done:
             print(f"seed {seed}: training {preset} -> {ckpt_path}", flush=True)
             train(cfg, data, ckpt_path, resume=ckpt_path.exists(), env=env, overrides=overrides)
         ckpt = read_checkpoint(ckpt_path)
@@ -210,6 +212,30 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             "ncs": to_dict(NCSConfig(clusters=clusters)), "summary": summary}
     write_table(f"seeds_{preset}", rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "summary": summary}
+
+
+def _keep_for_extending(ckpt_path: Path, cfg) -> None:
+    """A seed's run of an earlier recipe that differs from `cfg` only in fields of its later
+    phases (`training.EXTENDABLE`, e.g. the render phase) is kept as `dslate-step-N.pt` (and
+    its log) for `seeds` to extend; any other difference is refused."""
+    from .config import config_diff, to_dict
+    from .training import EXTENDABLE, read_checkpoint
+
+    ckpt = read_checkpoint(ckpt_path)
+    differ = config_diff(ckpt["config"], to_dict(cfg))
+    if not differ:
+        return
+    foreign = [d for d in differ if not d.startswith(tuple(f"{f}:" for f in EXTENDABLE))]
+    if foreign:
+        raise ValueError(f"{ckpt_path} was trained with another recipe ({'; '.join(foreign[:4])}); "
+                         "give another --runs folder or delete that run")
+    base = ckpt_path.with_name(f"dslate-step-{int(ckpt['step'])}.pt")
+    if base.exists():
+        raise ValueError(f"{ckpt_path} differs from this recipe in {'; '.join(differ[:4])}, and {base}, "
+                         "where it would be kept to be extended, exists; move one of them")
+    if ckpt_path.with_suffix(".csv").exists():          # the log first: the checkpoint marks the move done
+        ckpt_path.with_suffix(".csv").replace(base.with_suffix(".csv"))
+    ckpt_path.replace(base)
 
 
 # ---------------------------------------------------------------------- clusters (Fig. 9, left)

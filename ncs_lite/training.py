@@ -115,8 +115,10 @@ def autocast(device: torch.device, precision: str):
 def lr_at(step: int, cfg: DSlateConfig) -> float:
     """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
     then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
-    ('cosine'); then `polish_lr` for the polish steps and `dynamics_lr` for the dynamics phase."""
+    ('cosine'); then `polish_lr` for the polish steps, `dynamics_lr` and `render_lr` for the last phases."""
     t = cfg.train
+    if t.render_steps and step >= t.dynamics_end():
+        return t.render_lr
     if t.dynamics_steps and step >= t.polish_end():
         return t.dynamics_lr
     if step >= t.main_steps():
@@ -153,12 +155,16 @@ class BatchOrder:
 
 
 def build_optimizer(model: DSlate, cfg: DSlateConfig) -> torch.optim.Adam:
-    """Adam with two groups: the dVAE (constant lr) and everything else (warm-up lr)."""
+    """Adam with groups: the dVAE (constant lr), everything else (warm-up lr) but the renderer,
+    and the renderer (same lr), last, so that a run extended by it keeps the others' state."""
     dvae = list(model.dvae.parameters())
-    ids = {id(p) for p in dvae}
+    renderer = list(model.renderer.parameters()) if model.renderer is not None else []
+    ids = {id(p) for p in dvae + renderer}
     rest = [p for p in model.parameters() if id(p) not in ids]
     groups = [{"params": dvae, "lr": cfg.dvae.lr, "name": "dvae"},
               {"params": rest, "lr": lr_at(0, cfg), "name": "slate"}]
+    if renderer:
+        groups.append({"params": renderer, "lr": lr_at(0, cfg), "name": "renderer"})
     return torch.optim.Adam(groups)
 
 
@@ -250,9 +256,13 @@ def _check_continuable(ckpt: dict, what: str) -> None:
                          "use --force to start afresh")
 
 
-# Fields that act only on steps after the polish: a finished run may be extended by them
-# (`--extend`) without retraining what came before.
-EXTENDABLE = ("train.dynamics_steps", "train.dynamics_lr")
+# Fields that act only on the phases after the polish, each with the phase it acts from: a
+# finished run may be extended by them (`--extend`) without retraining what came before.
+EXTENDABLE = {"train.dynamics_steps": "polish_end", "train.dynamics_lr": "polish_end",
+              "train.render_steps": "dynamics_end", "train.render_lr": "dynamics_end",
+              "mixture.render_hidden": "dynamics_end"}
+# what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
+ADDED_BY_EXTENDING = ("renderer.",)
 
 
 def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict) -> list[str]:
@@ -261,13 +271,17 @@ def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict)
     from .config import from_dict
 
     allowed = tuple(f"{f}:" for f in EXTENDABLE) + ("training code:",)
-    problems = [d for d in _resume_differences(ckpt, cfg, precision, env, data_meta) if not d.startswith(allowed)]
+    differences = _resume_differences(ckpt, cfg, precision, env, data_meta)
+    problems = [d for d in differences if not d.startswith(allowed)]
     step, done = int(ckpt["step"]), from_dict(ckpt["config"]).train.total_steps()
     if step < done:
         problems.append(f"it stopped at step {step} of its {done}: --resume it first")
-    if step > cfg.train.polish_end():
-        problems.append(f"it is at step {step}, past this run's polish end ({cfg.train.polish_end()}): "
-                        "the changed fields would act on steps it has already taken")
+    changed = [f for f in EXTENDABLE if any(d.startswith(f"{f}:") for d in differences)]
+    starts = {f: getattr(cfg.train, EXTENDABLE[f])() for f in changed}
+    late = [f"{f} (from step {starts[f]})" for f in changed if step > starts[f]]
+    if late:
+        problems.append(f"it is at step {step}, past where the changed fields act: {', '.join(late)}; "
+                        "they would act on steps it has already taken")
     elif cfg.train.total_steps() <= step:
         problems.append(f"this run ends at step {cfg.train.total_steps()} and adds nothing to its {step}")
     return problems
@@ -361,11 +375,10 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
             problems = _extend_problems(ckpt, cfg, precision, env, data_meta)
             if problems:
                 raise ValueError(f"cannot extend {extend}: {'; '.join(problems)}")
-            old = ckpt["config"].get("train", {})
             lineage = list(ckpt.get("lineage") or []) + [{
                 "path": relative_to_repo(extend), "sha256": sha256_file(extend), "step": int(ckpt["step"]),
                 "code_version": ckpt.get("code_version"),
-                "fields": {f: old.get(f.split(".")[1]) for f in EXTENDABLE}}]
+                "fields": {f: ckpt["config"].get(f.split(".")[0], {}).get(f.split(".")[1]) for f in EXTENDABLE}}]
         if resume:
             if not out_path.exists():
                 raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
@@ -392,11 +405,11 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
         order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
         return _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env,
                      data_meta, version, overrides, stop, ckpt if (resume or extend is not None) else None,
-                     lineage)
+                     lineage, extending=extend is not None)
 
 
 def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env, data_meta,
-          version, overrides, stop, ckpt, lineage=()) -> Path:
+          version, overrides, stop, ckpt, lineage=(), extending=False) -> Path:
     seed_everything(cfg.train.seed)
     model = DSlate(cfg).to(device)
     forward = torch.compile(model) if compile else model          # same parameters
@@ -404,11 +417,7 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
     step, seconds = 0, 0.0
     resume = ckpt is not None
     if resume:
-        try:
-            model.load_state_dict(ckpt["model"])
-        except RuntimeError as e:
-            raise ValueError(f"checkpoint {out_path} does not match this code's model: {e}") from e
-        opt.load_state_dict(ckpt["optimizer"])
+        _restore(model, opt, ckpt, out_path, extending)
         _set_rng_state(ckpt["rng"], device)
         step, seconds = int(ckpt["step"]), float(ckpt["seconds"])
         _truncate_csv(csv_path, step)
@@ -442,7 +451,9 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 # drawn from (seed, step) alone, like the batch, so a resumed run sees the same
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             with autocast(device, precision):
-                if step >= cfg.train.polish_end():       # the dynamics phase: nothing else moves
+                if step >= cfg.train.dynamics_end():     # the render phase: the renderer alone
+                    out = model.render_loss(frames)
+                elif step >= cfg.train.polish_end():     # the dynamics phase: nothing else moves
                     out = model.dynamics_loss(frames, actions)
                 else:
                     out = forward(frames, actions, tau, dvae_only=dvae_only,
@@ -479,6 +490,25 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
         csv_file.close()
         bar.close()
     return out_path
+
+
+def _restore(model, opt, ckpt, out_path, extending: bool) -> None:
+    """Load a checkpoint's model and optimizer; an extended run may lack the parts that its
+    extension adds (ADDED_BY_EXTENDING), which then start from their initialisation."""
+    try:
+        result = model.load_state_dict(ckpt["model"], strict=not extending)
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint {out_path} does not match this code's model: {e}") from e
+    foreign = list(result.unexpected_keys) + [k for k in result.missing_keys
+                                              if not k.startswith(ADDED_BY_EXTENDING)]
+    if foreign:
+        raise ValueError(f"checkpoint {out_path} does not match this code's model: {foreign[:4]}")
+    added = []
+    if result.missing_keys and len(ckpt["optimizer"]["param_groups"]) < len(opt.param_groups):
+        added = [opt.param_groups.pop()]                 # the new renderer's group, last
+    opt.load_state_dict(ckpt["optimizer"])
+    for group in added:
+        opt.add_param_group(group)
 
 
 def _non_finite(what, value, step, out_path, last_saved):

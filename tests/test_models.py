@@ -169,6 +169,7 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     cfg.mixture.appearance, cfg.mixture.state_mask_weight = ("type", 0.3) if split else ("slot", 0.0)
     cfg.dynamics.latent_weight, cfg.dvae.foreground_weight = (2.0, 5.0) if split else (0.0, 1.0)
     cfg.slots.position_state = split
+    cfg.mixture.render_hidden = 8 if split else 0
     m = DSlate(cfg)
     v, a = videos(B=2, T=3)
     out = m(v, a, tau=1.0)
@@ -208,6 +209,13 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
         # the drawn masks read s alone: changing z changes nothing
         other = torch.cat([torch.randn_like(r.types), r.states], -1)
         assert torch.allclose(m.state_masks_of(other), drawn)
+        # the render phase's loss reaches the renderer alone (the mixture decoder paints frozen)
+        m.train()
+        m.zero_grad(set_to_none=True)
+        m.render_loss(v)["loss"].backward()
+        reached = {n for n, p in m.named_parameters() if p.grad is not None}
+        assert reached and all(n.startswith("renderer.") for n in reached)
+        assert all(p.requires_grad for p in m.parameters())
     else:
         with pytest.raises(ValueError, match="render needs"):
             m.render(r.slots)

@@ -92,10 +92,10 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 dynamics steps
     end = cfg.train.polish_end()
-    assert cfg.train.total_steps() == end + cfg.train.dynamics_steps == end + 2
+    assert cfg.train.dynamics_end() == end + cfg.train.dynamics_steps == end + 2
     before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
     before = {k: v.clone() for k, v in before.items()}
-    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=end + 2), weights_only=True)
     assert after["step"] == end + 2
     changed = {k for k in before if not torch.equal(before[k], after["model"][k])}
     assert changed and all(k.startswith("dynamics.") for k in changed)
@@ -106,12 +106,52 @@ def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_
         ci(dynamics_steps=-1).validate()
 
 
+def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
+    cfg = ci()                                                # ... then 2 render steps
+    end = cfg.train.dynamics_end()
+    assert cfg.train.total_steps() == end + cfg.train.render_steps == end + 2
+    assert lr_at(end, cfg) == cfg.train.render_lr and lr_at(end - 1, cfg) == cfg.train.dynamics_lr
+    before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
+    before = {k: v.clone() for k, v in before.items()}
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    changed = {k for k in before if not torch.equal(before[k], after["model"][k])}
+    assert changed and all(k.startswith("renderer.") for k in changed)
+    rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
+    assert all(float(r["loss"]) > 0 and float(r["latent"]) == float(r["mix"]) == 0 for r in rows)
+    with pytest.raises(ValueError, match="render_steps > 0 fits the renderer, but mixture.render_hidden is 0"):
+        _no_renderer(render_steps=2).validate()
+    with pytest.raises(ValueError, match="train.render_lr must be > 0, got 0"):
+        ci(render_lr=0.0).validate()
+
+
+def _no_renderer(**train):
+    cfg = ci(**train)
+    cfg.mixture.render_hidden = 0
+    return cfg
+
+
+def test_extend_by_the_render_phase_equals_a_straight_run(buffer, tmp_path):
+    plain = _no_renderer(render_steps=0)
+    done = train(plain, buffer, tmp_path / "plain.pt")
+    out = train(ci(), buffer, tmp_path / "ext.pt", extend=done)
+    straight = train(ci(), buffer, tmp_path / "straight.pt")
+    a, b = torch.load(out, weights_only=True), torch.load(straight, weights_only=True)
+    assert a["step"] == b["step"] == plain.train.total_steps() + 2
+    assert a["model"].keys() == b["model"].keys() and any(k.startswith("renderer.") for k in a["model"])
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert a["lineage"][0]["fields"]["mixture.render_hidden"] == 0
+    # a run past the dynamics phase cannot take a longer dynamics phase
+    with pytest.raises(ValueError, match=r"past where the changed fields act: train.dynamics_steps"):
+        train(_no_renderer(render_steps=0, dynamics_steps=4), buffer, tmp_path / "d.pt", extend=done)
+
+
 def test_extend_adds_the_dynamics_phase_to_a_finished_run(buffer, tmp_path):
-    plain = ci(dynamics_steps=0)
+    plain = _no_renderer(dynamics_steps=0, render_steps=0)
     done = train(plain, buffer, tmp_path / "plain.pt")
     with pytest.raises(ValueError, match="the changed fields|adds nothing"):
         train(plain, buffer, tmp_path / "same.pt", extend=done)
-    out = train(ci(), buffer, tmp_path / "ext.pt", extend=done)
+    out = train(_no_renderer(render_steps=0), buffer, tmp_path / "ext.pt", extend=done)
     a, b = torch.load(done, weights_only=True), torch.load(out, weights_only=True)
     assert b["step"] == a["step"] + 2
     changed = {k for k in a["model"] if not torch.equal(a["model"][k], b["model"][k])}
@@ -174,9 +214,11 @@ def test_schedules_and_batch_order():
     main = red.train.main_steps()
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
     assert red.train.polish_end() == main + red.train.polish_steps == 3700
-    assert red.train.total_steps() == 3700 + red.train.dynamics_steps == 5700
+    assert red.train.dynamics_end() == 3700 + red.train.dynamics_steps == 5700
+    assert red.train.total_steps() == 5700 + red.train.render_steps == 9700
     assert lr_at(main, red) == lr_at(red.train.polish_end() - 1, red) == red.train.polish_lr
     assert lr_at(3700, red) == lr_at(5699, red) == red.train.dynamics_lr
+    assert lr_at(5700, red) == lr_at(9699, red) == red.train.render_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
@@ -267,3 +309,17 @@ def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_fram
     assert any(p.grad is not None and p.grad.any() for p in model.slot_attn.parameters())
     with pytest.raises(ValueError, match="mixture_videos must have the shape of videos"):
         model(videos, actions, tau=1.0, mixture_videos=videos[:1])
+
+
+def test_seeds_keep_a_run_of_an_earlier_recipe_to_extend_it(buffer, tmp_path):
+    from ncs_lite.reproduce import _keep_for_extending
+
+    old = train(_no_renderer(render_steps=0), buffer, tmp_path / "dslate.pt")
+    with pytest.raises(ValueError, match=r"another recipe \(train.lr"):
+        _keep_for_extending(old, ci(lr=2e-3))
+    _keep_for_extending(old, ci())
+    base = tmp_path / f"dslate-step-{_no_renderer(render_steps=0).train.total_steps()}.pt"
+    assert base.exists() and base.with_suffix(".csv").exists() and not old.exists()
+    train(ci(), buffer, old, extend=base)
+    _keep_for_extending(old, ci())                             # the extended run is this recipe's
+    assert old.exists()

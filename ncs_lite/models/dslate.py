@@ -50,7 +50,7 @@ from .mixture_decoder import ERRORS as MIXTURE_ERRORS, MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
 from .slot_attention import SlotAttention
-from .state_decoder import StateMaskDecoder, coordinate_grid
+from .state_decoder import SlotRenderer, StateMaskDecoder, coordinate_grid
 
 __all__ = ["DSlate", "SlotInference", "MODEL_VERSION"]
 
@@ -122,6 +122,11 @@ class DSlate(nn.Module):
                         if mx.weight > 0 else None)
         self.state_masks = (StateMaskDecoder(sc.state_dim, cfg.mask_grid)
                             if mx.state_mask_weight > 0 else None)
+        # made last and outside the global random stream: a run with a renderer trains every
+        # other part bit for bit as a run without one, which a finished run may be extended by
+        with torch.random.fork_rng(devices=[]):
+            self.renderer = (SlotRenderer(sc.type_dim, sc.state_dim, cfg.mask_grid, mx.render_hidden)
+                             if mx.render_hidden > 0 else None)
         self.register_buffer("grid_coords", coordinate_grid(cfg.mask_grid), persistent=False)
 
     # ------------------------------------------------------------------ input checks
@@ -286,6 +291,34 @@ class DSlate(nn.Module):
         latent = (pred[..., self.type_dim:] - slots[:, 1:, :, self.type_dim:]).float().pow(2).sum((2, 3)).mean()
         return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
 
+    def render_loss(self, videos: torch.Tensor) -> dict:
+        """The render phase's loss (TrainConfig.render_steps): the mean absolute error of
+        `render`'s image against each frame, pixels far from the floor's colour weighted by
+        `mixture.foreground_weight`, on slots inferred without gradient with `eval_iterations`
+        (as NCS reads them). Only the renderer receives a gradient: the mixture decoder paints
+        frozen. The other LOSSES are 0 (the log's "loss" column holds the error)."""
+        if self.renderer is None:
+            raise ValueError("render_loss fits the renderer, but this model has none (mixture.render_hidden = 0)")
+        videos = self._check_images(videos, 5, "videos")
+        T = videos.shape[1]
+        x = videos.flatten(0, 1).float() / 255.0
+        with torch.no_grad():
+            slots, _ = self._inputs_to_slots(self._slot_inputs(x), T,
+                                             iterations=self.cfg.slots.eval_iterations)
+        slots = slots.flatten(0, 1)
+        for p in self.mixture.parameters():                            # painting, not learning
+            p.requires_grad_(False)
+        try:
+            patches, _ = self.mixture(slots, self._render_alpha(slots))
+        finally:
+            for p in self.mixture.parameters():
+                p.requires_grad_(True)
+        p = self.cfg.image_size // self.mixture.grid
+        far = foreground(x).expand_as(x).float()
+        weight = patchify(1.0 + (self.cfg.mixture.foreground_weight - 1.0) * far, p)
+        error = ((patches.float() - patchify(x, p)).abs() * weight).mean()
+        return {**dict.fromkeys(LOSSES, error.new_zeros(())), "loss": error}
+
     def mixture_error(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor,
                       foreground_weight: float | None = None, error: str | None = None) -> torch.Tensor:
         """The mixture decoder's reconstruction error per image (B,): x (B, H, W, 3) in [0, 1],
@@ -444,8 +477,9 @@ class DSlate(nn.Module):
 
     @property
     def can_render(self) -> bool:
-        """Whether `render` works: the model has the mixture and state-mask decoders."""
-        return self.mixture is not None and self.state_masks is not None
+        """Whether `render` works: the model has the mixture decoder and the renderer or the
+        state-mask decoder."""
+        return self.mixture is not None and (self.renderer is not None or self.state_masks is not None)
 
     @torch.no_grad()
     def state_masks_of(self, slots: torch.Tensor) -> torch.Tensor:
@@ -460,20 +494,27 @@ class DSlate(nn.Module):
         logits = self.state_masks(slots[..., self.type_dim:].to(self.pos_emb.dtype))
         return logits.float().softmax(1)
 
+    def _render_alpha(self, slots: torch.Tensor) -> torch.Tensor:
+        """The masks (B, K, N') `render` paints with: the renderer's, else the state-mask decoder's."""
+        if self.renderer is None:
+            return self._state_alpha(slots)
+        return self.renderer(slots.to(self.pos_emb.dtype)).float().softmax(1)
+
     @torch.no_grad()
     def render(self, slots: torch.Tensor) -> torch.Tensor:
         """The image the slots alone describe: each slot's look (mixture decoder, from z)
-        where its state s says it is (state-mask decoder). slots (B, K, D), inferred or
-        predicted by `predict` -> images (B, H, W, 3) float in [0, 1]. Needs `can_render`;
-        the paper's model decodes through its transformer instead (`decode`)."""
+        where its state s says it is (the renderer, fitted to the frames in the render phase;
+        without one, the state-mask decoder). slots (B, K, D), inferred or predicted by
+        `predict` -> images (B, H, W, 3) float in [0, 1]. Needs `can_render`; the paper's
+        model decodes through its transformer instead (`decode`)."""
         if not self.can_render:
-            raise ValueError("render needs the mixture decoder and the state-mask decoder "
-                             "(mixture.weight > 0 and mixture.state_mask_weight > 0); "
-                             "use decode() for the SLATE decoder")
+            raise ValueError("render needs the mixture decoder and the renderer or the state-mask "
+                             "decoder (mixture.weight > 0 and mixture.render_hidden > 0 or "
+                             "mixture.state_mask_weight > 0); use decode() for the SLATE decoder")
         if slots.ndim != 3 or slots.shape[-1] != self.slot_dim:
             raise ValueError(f"slots must have shape (B, K, {self.slot_dim}), got {tuple(slots.shape)}")
         slots = slots.to(self.pos_emb.dtype)
-        patches, _ = self.mixture(slots, self._state_alpha(slots))     # (B, N', p*p*3)
+        patches, _ = self.mixture(slots, self._render_alpha(slots))    # (B, N', p*p*3)
         g = self.mixture.grid
         return unpatchify(patches, self.cfg.image_size // g, g).clamp(0, 1)
 
