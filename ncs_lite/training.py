@@ -260,6 +260,7 @@ def _check_continuable(ckpt: dict, what: str) -> None:
 # finished run may be extended by them (`--extend`) without retraining what came before.
 EXTENDABLE = {"train.dynamics_steps": "polish_end", "train.dynamics_lr": "polish_end",
               "train.render_steps": "dynamics_end", "train.render_lr": "dynamics_end",
+              "train.render_mask_steps": "dynamics_end",
               "mixture.render_hidden": "dynamics_end"}
 # what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
 ADDED_BY_EXTENDING = ("renderer.",)
@@ -452,7 +453,7 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             with autocast(device, precision):
                 if step >= cfg.train.dynamics_end():     # the render phase: the renderer alone
-                    out = model.render_loss(frames)
+                    out = model.render_loss(frames, masks=step < cfg.train.dynamics_end() + cfg.train.render_mask_steps)
                 elif step >= cfg.train.polish_end():     # the dynamics phase: nothing else moves
                     out = model.dynamics_loss(frames, actions)
                 else:

@@ -211,10 +211,11 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
         assert torch.allclose(m.state_masks_of(other), drawn)
         # the render phase's loss reaches the renderer alone (the mixture decoder paints frozen)
         m.train()
-        m.zero_grad(set_to_none=True)
-        m.render_loss(v)["loss"].backward()
-        reached = {n for n, p in m.named_parameters() if p.grad is not None}
-        assert reached and all(n.startswith("renderer.") for n in reached)
+        for masks in (False, True):
+            m.zero_grad(set_to_none=True)
+            m.render_loss(v, masks=masks)["loss"].backward()
+            reached = {n for n, p in m.named_parameters() if p.grad is not None}
+            assert reached and all(n.startswith("renderer.") for n in reached)
         assert all(p.requires_grad for p in m.parameters())
     else:
         with pytest.raises(ValueError, match="render needs"):

@@ -118,15 +118,20 @@ def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
     assert changed and all(k.startswith("renderer.") for k in changed)
     rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
     assert all(float(r["loss"]) > 0 and float(r["latent"]) == float(r["mix"]) == 0 for r in rows)
+    # the first (render_mask_steps) fits masks, a cross-entropy summed over cells; then pixels
+    assert float(rows[0]["loss"]) > 1 > float(rows[1]["loss"])
     with pytest.raises(ValueError, match="render_steps > 0 fits the renderer, but mixture.render_hidden is 0"):
         _no_renderer(render_steps=2).validate()
     with pytest.raises(ValueError, match="train.render_lr must be > 0, got 0"):
         ci(render_lr=0.0).validate()
+    with pytest.raises(ValueError, match=r"render_mask_steps \(3\) are the render phase's first steps"):
+        ci(render_mask_steps=3).validate()
 
 
 def _no_renderer(**train):
     cfg = ci(**train)
     cfg.mixture.render_hidden = 0
+    cfg.train.render_mask_steps = min(cfg.train.render_mask_steps, cfg.train.render_steps)
     return cfg
 
 

@@ -291,21 +291,27 @@ class DSlate(nn.Module):
         latent = (pred[..., self.type_dim:] - slots[:, 1:, :, self.type_dim:]).float().pow(2).sum((2, 3)).mean()
         return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
 
-    def render_loss(self, videos: torch.Tensor) -> dict:
+    def render_loss(self, videos: torch.Tensor, masks: bool = False) -> dict:
         """The render phase's loss (TrainConfig.render_steps): the mean absolute error of
         `render`'s image against each frame, pixels far from the floor's colour weighted by
         `mixture.foreground_weight`, on slots inferred without gradient with `eval_iterations`
-        (as NCS reads them). Only the renderer receives a gradient: the mixture decoder paints
-        frozen. The other LOSSES are 0 (the log's "loss" column holds the error)."""
+        (as NCS reads them); with `masks` (the phase's first `render_mask_steps`), the
+        cross-entropy of the renderer's masks against slot attention's instead, as the
+        state-mask decoder learns. Only the renderer receives a gradient: the mixture decoder
+        paints frozen. The other LOSSES are 0 (the log's "loss" column holds the error)."""
         if self.renderer is None:
             raise ValueError("render_loss fits the renderer, but this model has none (mixture.render_hidden = 0)")
         videos = self._check_images(videos, 5, "videos")
         T = videos.shape[1]
         x = videos.flatten(0, 1).float() / 255.0
         with torch.no_grad():
-            slots, _ = self._inputs_to_slots(self._slot_inputs(x), T,
-                                             iterations=self.cfg.slots.eval_iterations)
+            slots, attn = self._inputs_to_slots(self._slot_inputs(x), T,
+                                                iterations=self.cfg.slots.eval_iterations)
         slots = slots.flatten(0, 1)
+        if masks:
+            logits = self.renderer(slots).float()
+            error = -(attn.flatten(0, 1).float() * logits.log_softmax(1)).sum((1, 2)).mean()
+            return {**dict.fromkeys(LOSSES, error.new_zeros(())), "loss": error}
         for p in self.mixture.parameters():                            # painting, not learning
             p.requires_grad_(False)
         try:

@@ -18,11 +18,11 @@ attends and the bump only has to read it.)
 `SlotRenderer` draws the same kind of bump for `DSlate.render`, fitted to the frames instead
 (the render phase: a pixel loss through the frozen mixture decoder). Fitted to slot
 attention's soft masks, the linear bump's cubes stay low and wide and the floor paints over
-them: the image is nearly empty floor (foreground error 0.31 against the empty floor's 0.36
-on the shipped `reduced` model, notebook 04), and a pixel loss does not rescue the linear
-map (0.29 after 1,500 steps). Its centre comes from s alone, through an MLP; its spread and
-height also from the whole slot, since what the object is (the floor or a cube) sets how
-big and how dominant its mask is.
+them: the image is nearly empty floor (docs/HISTORY.md, "Rendering before the render
+phase"), and in an exploratory fit a pixel loss through the linear map barely moved it. The
+renderer's centre comes from s alone, through an MLP; its spread and height also from the
+whole slot, since what the object is (the floor or a cube) sets how big and how dominant
+its mask is.
 
 Shapes: states (B, K, Ds) -> mask logits (B, K, N), N = grid * grid, positions in [-1, 1].
 """
