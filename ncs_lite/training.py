@@ -12,7 +12,9 @@ What the loop guarantees:
   slot attention / decoder / dynamics (linear warm-up, then constant or cosine), and the
   dVAE's constant lr (no warm-up), as in Table 2. Optional polish steps follow the schedule
   (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight), then
-  optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss).
+  optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss),
+  then optional render steps (`TrainConfig.render_steps`: the renderer alone, mask then
+  pixel loss).
   With `TrainConfig.color_augment` the mixture loss reads each video with its colour
   channels permuted (data/augment.py), drawn from (seed, step) like the batch.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
@@ -31,7 +33,8 @@ What the loop guarantees:
   a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
   and loss log first, so the two never mix); a lock file (`<out>.lock`) makes two runs on
   one `out` refuse each other. `--extend` continues a *finished* run into a new file under a
-  schedule that only adds later phases (`EXTENDABLE`: the dynamics phase), recording the run
+  schedule that only adds later phases (`EXTENDABLE`: the dynamics and render phases; the
+  renderer, which only the render phase trains, may be new), recording the run
   it extends in `lineage`. Each checkpoint records the commit (`provenance`: writing
   into `ncs_lite/assets/` from a dirty tree is refused), the `--set` overrides, and the
   buffer's path (relative to the repo) and manifest hash.
@@ -115,7 +118,8 @@ def autocast(device: torch.device, precision: str):
 def lr_at(step: int, cfg: DSlateConfig) -> float:
     """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
     then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
-    ('cosine'); then `polish_lr` for the polish steps, `dynamics_lr` and `render_lr` for the last phases."""
+    ('cosine'); then `polish_lr` for the polish steps, `dynamics_lr` and `render_lr` for the
+    dynamics and render phases."""
     t = cfg.train
     if t.render_steps and step >= t.dynamics_end():
         return t.render_lr
@@ -453,7 +457,8 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             with autocast(device, precision):
                 if step >= cfg.train.dynamics_end():     # the render phase: the renderer alone
-                    out = model.render_loss(frames, masks=step < cfg.train.dynamics_end() + cfg.train.render_mask_steps)
+                    masks = step < cfg.train.dynamics_end() + cfg.train.render_mask_steps
+                    out = model.render_loss(frames, masks=masks)
                 elif step >= cfg.train.polish_end():     # the dynamics phase: nothing else moves
                     out = model.dynamics_loss(frames, actions)
                 else:
@@ -545,7 +550,7 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--resume", action="store_true", help="continue from --out")
     p.add_argument("--extend", default=None, metavar="CHECKPOINT",
                    help="continue a finished run (another file) into --out under a schedule that only adds "
-                        f"steps after its end ({', '.join(EXTENDABLE)}), e.g. the dynamics phase")
+                        f"steps after its end ({', '.join(EXTENDABLE)}), e.g. the render phase")
     p.add_argument("--steps", type=int, default=None,
                    help="stop at this global step (default: the preset's full schedule)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
