@@ -52,6 +52,11 @@ class SlotConfig:
     #                             slot's attention (Invariant Slot Attention's slot position;
     #                             not in the paper): s then holds where its object is. With
     #                             state_dim 4 (`reduced`) that is all of s
+    position_prior: float = 0.0  # with position_state: attention mass (in grid cells) added at
+    #                             the image's centre with a uniform image's spread before the
+    #                             centroid and spread are taken, so a slot attending to (almost)
+    #                             nothing has the prior's state, not the centroid of its stray
+    #                             attention, which jumps between frames; 0 = none
 
     @property
     def slot_dim(self) -> int:
@@ -309,7 +314,7 @@ _AT_LEAST = {
 _IN_RANGE = {
     "dvae.tau_start": (0.0, None, "> 0"), "dvae.tau_end": (0.0, None, "> 0"), "dvae.lr": (0.0, None, "> 0"),
     "train.lr": (0.0, None, "> 0"), "train.grad_clip": (0.0, None, "> 0"), "train.dynamics_lr": (0.0, None, "> 0"),
-    "train.render_lr": (0.0, None, "> 0"),
+    "train.render_lr": (0.0, None, "> 0"), "slots.position_prior": (0.0, math.inf, ">= 0"),
     "decoder.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.token_dropout": (0.0, 1.0, "in [0, 1)"),
     "dynamics.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.slot_grad": (0.0, math.inf, ">= 0"),
     "mixture.weight": (0.0, math.inf, ">= 0"),

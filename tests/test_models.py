@@ -483,3 +483,21 @@ def test_config_rejects_bad_values_by_name(part, name, value, message):
     setattr(getattr(cfg, part), name, value)
     with pytest.raises(ValueError, match=re.escape(message)):
         cfg.validate()
+
+
+def test_position_prior_gives_a_slot_that_attends_to_nothing_the_prior_state():
+    cfg = tiny_cfg()                                          # ci: position_state, 32x32 masks
+    N = cfg.mask_grid ** 2
+    attn = torch.zeros(1, 3, N)
+    attn[0, 0, : N // 2] = 1.0                                # the top half of the image
+    attn[0, 1, N // 2:] = 1.0                                 # the bottom half
+    attn[0, 2, 0] = 1e-3                                      # a stray speck in a corner
+    plain = DSlate(cfg)._with_position(torch.zeros(1, 3, cfg.slots.slot_dim), attn)[0, :, -4:]
+    cfg.slots.position_prior = 0.5
+    prior = DSlate(cfg)._with_position(torch.zeros(1, 3, cfg.slots.slot_dim), attn)[0, :, -4:]
+    assert plain[2, 0] < -0.9 and plain[2, 2] < 0.01          # the speck's centroid, no spread
+    assert torch.allclose(prior[2], torch.tensor([0.0, 0.0, 3 ** -0.5, 3 ** -0.5]), atol=2e-3)
+    assert torch.allclose(prior[:2], plain[:2], atol=2e-3)    # 512 cells of mass: the prior is nothing
+    cfg.slots.position_prior = -1.0
+    with pytest.raises(ValueError, match="slots.position_prior must be >= 0, got -1"):
+        cfg.validate()

@@ -194,10 +194,16 @@ class DSlate(nn.Module):
         each slot attends: the centroid (row, col) and spread (std per axis) of its attention
         (B, K, N') over the grid, in [-1, 1]. As in Invariant Slot Attention (Biza et al.,
         2023), where a slot is becomes part of the slot; here, of its state s."""
-        w = attn.float() / (attn.float().sum(-1, keepdim=True) + 1e-8)   # (B, K, N')
-        coords = self.grid_coords.to(w.dtype)                            # (N', 2)
-        centre = w @ coords                                              # (B, K, 2)
-        spread = (w @ coords.pow(2) - centre.pow(2)).clamp(min=1e-6).sqrt()
+        a, prior = attn.float(), self.cfg.slots.position_prior
+        coords = self.grid_coords.to(a.dtype)                            # (N', 2)
+        if prior > 0:   # `prior` cells of attention at (0, 0) with the spread of a uniform image
+            mass = a.sum(-1, keepdim=True) + prior                       # (B, K, 1)
+            centre = (a @ coords) / mass                                 # (B, K, 2)
+            spread = ((a @ coords.pow(2) + prior / 3.0) / mass - centre.pow(2)).clamp(min=1e-6).sqrt()
+        else:
+            w = a / (a.sum(-1, keepdim=True) + 1e-8)                     # (B, K, N')
+            centre = w @ coords                                          # (B, K, 2)
+            spread = (w @ coords.pow(2) - centre.pow(2)).clamp(min=1e-6).sqrt()
         where = torch.cat([centre, spread], -1).to(slots.dtype)
         return torch.cat([slots[..., :slots.shape[-1] - POSITION_FEATURES], where], -1)
 
