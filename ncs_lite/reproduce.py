@@ -218,7 +218,7 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
     """A seed's run of an earlier recipe that differs from `cfg` only in fields of its later
     phases (`training.EXTENDABLE`, e.g. the render phase) is kept as `dslate-step-N.pt` (and
     its log) for `seeds` to extend; any other difference is refused."""
-    from .config import config_diff, to_dict
+    from .config import config_diff, from_dict, to_dict
     from .training import EXTENDABLE, read_checkpoint
 
     ckpt = read_checkpoint(ckpt_path)
@@ -229,6 +229,10 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
     if foreign:
         raise ValueError(f"{ckpt_path} was trained with another recipe ({'; '.join(foreign[:4])}); "
                          "give another --runs folder or delete that run")
+    if int(ckpt["step"]) < from_dict(ckpt["config"]).train.total_steps():
+        raise ValueError(f"{ckpt_path} is an unfinished run of an earlier recipe ({'; '.join(differ[:4])}); "
+                         "finish it with that recipe's settings (train --resume) before this one extends it, "
+                         "or delete it")
     base = ckpt_path.with_name(f"dslate-step-{int(ckpt['step'])}.pt")
     if base.exists():
         raise ValueError(f"{ckpt_path} differs from this recipe in {'; '.join(differ[:4])}, and {base}, "

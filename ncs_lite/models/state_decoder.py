@@ -67,6 +67,9 @@ class StateMaskDecoder(nn.Module):
 
 
 class SlotRenderer(nn.Module):
+    """The masks `DSlate.render` paints with: a bump per slot, its centre from s, its spread
+    and height from [z; s] (module docstring); trained by the render phase alone."""
+
     def __init__(self, type_dim: int, state_dim: int, grid: int, hidden: int):
         super().__init__()
         self.type_dim = type_dim
