@@ -72,6 +72,19 @@ def foreground(x: torch.Tensor) -> torch.Tensor:
     return (x - background).norm(dim=-1, keepdim=True) > FOREGROUND_DISTANCE
 
 
+def foreground_weights(x: torch.Tensor, weight: float, p: int, dtype: torch.dtype) -> torch.Tensor:
+    """(B, N, p*p*3) per-pixel weights of images x (B, H, W, 3) in patches of p: 1, and `weight`
+    for `foreground` pixels (the weighted errors of the mixture decoder and the renderer)."""
+    far = foreground(x).expand_as(x).to(dtype)                          # (B, H, W, 3)
+    return patchify(1.0 + (weight - 1.0) * far, p)
+
+
+def mask_cross_entropy(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of drawn masks (logits (B, K, N), softmax over K) against slot attention's
+    (target (B, K, N)), summed over slots and cells, mean over images."""
+    return -(target.float() * logits.float().log_softmax(1)).sum((1, 2)).mean()
+
+
 def scale_grad(x: torch.Tensor, scale: float) -> torch.Tensor:
     """x in the forward pass; its gradient times `scale` in the backward pass."""
     if scale == 1.0:
@@ -200,7 +213,7 @@ class DSlate(nn.Module):
             mass = a.sum(-1, keepdim=True) + prior                       # (B, K, 1)
             centre = (a @ coords) / mass                                 # (B, K, 2)
             spread = ((a @ coords.pow(2) + prior / 3.0) / mass - centre.pow(2)).clamp(min=1e-6).sqrt()
-        else:
+        else:           # the computation from before the prior, bit for bit (shipped checkpoints)
             w = a / (a.sum(-1, keepdim=True) + 1e-8)                     # (B, K, N')
             centre = w @ coords                                          # (B, K, 2)
             spread = (w @ coords.pow(2) - centre.pow(2)).clamp(min=1e-6).sqrt()
@@ -273,8 +286,7 @@ class DSlate(nn.Module):
             # a read-out: its gradient stops at s (through slot attention it collapsed the
             # masks into one slot that a bump can draw: fg-ARI 0.08 after 900 joint steps)
             logits = self.state_masks(slots[..., self.type_dim:].flatten(0, 1).detach())   # (B*T, K, N')
-            target = attn.flatten(0, 1).detach().float()
-            out["mask"] = -(target * logits.float().log_softmax(1)).sum((1, 2)).mean()
+            out["mask"] = mask_cross_entropy(logits, attn.flatten(0, 1).detach())
             loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
         if self.cfg.dynamics.latent_weight > 0:
             target = slots[:, 1:, :, self.type_dim:].detach()
@@ -283,16 +295,22 @@ class DSlate(nn.Module):
         out["loss"] = loss
         return out
 
+    @torch.no_grad()
+    def _read_videos(self, videos: torch.Tensor):
+        """Videos (B, T, H, W, 3) uint8 -> images x (B*T, H, W, 3) in [0, 1], slots (B, T, K, D)
+        and attention (B, T, K, N'), inferred without gradient with `eval_iterations`, as NCS
+        and MPC read them: the input of the phases that train one part alone."""
+        x = videos.flatten(0, 1).float() / 255.0
+        slots, attn = self._inputs_to_slots(self._slot_inputs(x), videos.shape[1],
+                                            iterations=self.cfg.slots.eval_iterations)
+        return x, slots, attn
+
     def dynamics_loss(self, videos: torch.Tensor, actions: torch.Tensor) -> dict:
         """The dynamics phase's loss (TrainConfig.dynamics_steps): the latent loss alone, on
         slots inferred through each video without gradient, with `eval_iterations` as NCS
         and MPC read them. Only the dynamics receives a gradient. The other LOSSES are 0."""
         videos = self._check_images(videos, 5, "videos")
-        B, T = videos.shape[:2]
-        with torch.no_grad():
-            x = videos.flatten(0, 1).float() / 255.0
-            slots, _ = self._inputs_to_slots(self._slot_inputs(x), T,
-                                             iterations=self.cfg.slots.eval_iterations)
+        _, slots, _ = self._read_videos(videos)
         pred = self.dynamics(slots[:, :-1], actions.to(videos.device))
         latent = (pred[..., self.type_dim:] - slots[:, 1:, :, self.type_dim:]).float().pow(2).sum((2, 3)).mean()
         return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
@@ -307,16 +325,10 @@ class DSlate(nn.Module):
         paints frozen. The other LOSSES are 0 (the log's "loss" column holds the error)."""
         if self.renderer is None:
             raise ValueError("render_loss fits the renderer, but this model has none (mixture.render_hidden = 0)")
-        videos = self._check_images(videos, 5, "videos")
-        T = videos.shape[1]
-        x = videos.flatten(0, 1).float() / 255.0
-        with torch.no_grad():
-            slots, attn = self._inputs_to_slots(self._slot_inputs(x), T,
-                                                iterations=self.cfg.slots.eval_iterations)
+        x, slots, attn = self._read_videos(self._check_images(videos, 5, "videos"))
         slots = slots.flatten(0, 1)
         if masks:
-            logits = self.renderer(slots).float()
-            error = -(attn.flatten(0, 1).float() * logits.log_softmax(1)).sum((1, 2)).mean()
+            error = mask_cross_entropy(self.renderer(slots), attn.flatten(0, 1))
             return {**dict.fromkeys(LOSSES, error.new_zeros(())), "loss": error}
         for p in self.mixture.parameters():                            # painting, not learning
             p.requires_grad_(False)
@@ -326,8 +338,7 @@ class DSlate(nn.Module):
             for p in self.mixture.parameters():
                 p.requires_grad_(True)
         p = self.cfg.image_size // self.mixture.grid
-        far = foreground(x).expand_as(x).float()
-        weight = patchify(1.0 + (self.cfg.mixture.foreground_weight - 1.0) * far, p)
+        weight = foreground_weights(x, self.cfg.mixture.foreground_weight, p, torch.float32)
         error = ((patches.float() - patchify(x, p)).abs() * weight).mean()
         return {**dict.fromkeys(LOSSES, error.new_zeros(())), "loss": error}
 
@@ -361,8 +372,7 @@ class DSlate(nn.Module):
             err = (patches - target).pow(2)                            # (B, N, p*p*3)
         w = self.cfg.mixture.foreground_weight if foreground_weight is None else foreground_weight
         if w != 1.0:
-            far = foreground(x).expand_as(x).to(err.dtype)             # (B, H, W, 3)
-            err = err * patchify(1.0 + (w - 1.0) * far, p)
+            err = err * foreground_weights(x, w, p, err.dtype)
         return err.sum(dim=(1, 2))
 
     # ------------------------------------------------------------------ inference API
