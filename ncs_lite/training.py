@@ -265,7 +265,7 @@ def _check_continuable(ckpt: dict, what: str) -> None:
 EXTENDABLE = {"train.dynamics_steps": "polish_end", "train.dynamics_lr": "polish_end",
               "train.render_steps": "dynamics_end", "train.render_lr": "dynamics_end",
               "train.render_mask_steps": "dynamics_end",
-              "mixture.render_hidden": "dynamics_end"}
+              "mixture.render_hidden": "dynamics_end", "slots.position_prior": "dynamics_end"}
 # what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
 ADDED_BY_EXTENDING = ("renderer.",)
 
@@ -455,6 +455,7 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
             if cfg.train.color_augment == "channels" and not dvae_only and step < cfg.train.polish_end():
                 # drawn from (seed, step) alone, like the batch, so a resumed run sees the same
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
+            model.position_prior = cfg.slots.position_prior if step >= cfg.train.dynamics_end() else 0.0
             with autocast(device, precision):
                 if step >= cfg.train.dynamics_end():     # the render phase: the renderer alone
                     masks = step < cfg.train.dynamics_end() + cfg.train.render_mask_steps

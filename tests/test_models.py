@@ -198,7 +198,7 @@ def test_dslate_forward_and_inference_api(token_dropout, encoder, mixture, alpha
     assert vid.slots.shape == (2, 3, K, Dz + Ds) and vid.masks.shape == (2, 3, K, 64, 64)
     if split:   # the last 4 state features are where each slot attends: centroid, spread
         from ncs_lite.models.state_decoder import coordinate_grid
-        w = r.attention / r.attention.sum(-1, keepdim=True)
+        w = r.attention / (r.attention.sum(-1, keepdim=True) + cfg.slots.position_prior)
         assert torch.allclose(r.states[..., -4:-2], w @ coordinate_grid(cfg.mask_grid), atol=1e-5)
         assert (r.states[..., -2:] > 0).all()
         img = m.render(nxt)
@@ -487,6 +487,7 @@ def test_config_rejects_bad_values_by_name(part, name, value, message):
 
 def test_position_prior_gives_a_slot_that_attends_to_nothing_the_prior_state():
     cfg = tiny_cfg()                                          # ci: position_state, 32x32 masks
+    cfg.slots.position_prior = 0.0
     N = cfg.mask_grid ** 2
     attn = torch.zeros(1, 3, N)
     attn[0, 0, : N // 2] = 1.0                                # the top half of the image

@@ -137,6 +137,7 @@ def _no_renderer(**train):
 
 def test_extend_by_the_render_phase_equals_a_straight_run(buffer, tmp_path):
     plain = _no_renderer(render_steps=0)
+    plain.slots.position_prior = 0.0                 # acts from the render phase: extendable too
     done = train(plain, buffer, tmp_path / "plain.pt")
     out = train(ci(), buffer, tmp_path / "ext.pt", extend=done)
     straight = train(ci(), buffer, tmp_path / "straight.pt")
@@ -146,6 +147,7 @@ def test_extend_by_the_render_phase_equals_a_straight_run(buffer, tmp_path):
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
     assert a["lineage"][0]["fields"]["mixture.render_hidden"] == 0
+    assert a["lineage"][0]["fields"]["slots.position_prior"] == 0
     # a run past the dynamics phase cannot take a longer dynamics phase
     with pytest.raises(ValueError, match=r"past where the changed fields act: train.dynamics_steps"):
         train(_no_renderer(render_steps=0, dynamics_steps=4), buffer, tmp_path / "d.pt", extend=done)

@@ -141,6 +141,9 @@ class DSlate(nn.Module):
             self.renderer = (SlotRenderer(sc.type_dim, sc.state_dim, cfg.mask_grid, mx.render_hidden)
                              if mx.render_hidden > 0 else None)
         self.register_buffer("grid_coords", coordinate_grid(cfg.mask_grid), persistent=False)
+        # the prior on where a slot is (slots.position_prior); training switches it off before
+        # the render phase, so the phases before it train as without one
+        self.position_prior = sc.position_prior
 
     # ------------------------------------------------------------------ input checks
     def _check_images(self, images, ndim: int, what: str) -> torch.Tensor:
@@ -207,7 +210,7 @@ class DSlate(nn.Module):
         each slot attends: the centroid (row, col) and spread (std per axis) of its attention
         (B, K, N') over the grid, in [-1, 1]. As in Invariant Slot Attention (Biza et al.,
         2023), where a slot is becomes part of the slot; here, of its state s."""
-        a, prior = attn.float(), self.cfg.slots.position_prior
+        a, prior = attn.float(), self.position_prior
         coords = self.grid_coords.to(a.dtype)                            # (N', 2)
         if prior > 0:   # `prior` cells of attention at (0, 0) with the spread of a uniform image
             mass = a.sum(-1, keepdim=True) + prior                       # (B, K, 1)
