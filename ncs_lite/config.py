@@ -452,11 +452,10 @@ def _reduced() -> DSlateConfig:
       pixel loss alone, seed 1's renderer stayed near the floor (the README gives the runs).
     * from the render phase on, a prior of 2 grid cells on where a slot is
       (`slots.position_prior`): the spare slot, which holds nothing, took its state from
-      stray attention that jumps between frames, and drew 44 of the dynamics' 47 misses of
-      the moved slot (shipped checkpoint before it; 0.83 ± 0.06 over 3 seeds, README).
-      Trained in from the first step (it feeds the next frame's slot attention), one seed
-      lost cubes' own slots (0.93 -> 0.87), so it acts only on the phases and reads after
-      the slots are learned.
+      stray attention that jumps between frames, and the dynamics' misses of the moved slot
+      fell mostly on it (moved slot 0.83 ± 0.06 over 3 seeds before the prior,
+      docs/HISTORY.md). It acts on the render phase and every read after training, so
+      finished runs extend by it; the slots and the dynamics are learned without it.
     * 6 slots, not 5, and the mixture loss on colour-permuted videos
       (`train.color_augment = "channels"`, data/augment.py): with 5 slots and true colours
       every run ended with one colour always in the floor's slot (its attention there

@@ -308,6 +308,8 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
       moved_slot_accuracy  how often the dynamics' largest predicted state change (L2) is on
                            the slot of the object the action moved (chance: 1 / slots; over
                            the transitions that moved an object)
+      moved_misses_objectless   of the transitions it misses, the share whose largest change
+                           is on a slot holding no object (the floor's or a spare; 0 if none missed)
       predicted_position_r2   R^2 of the moved object's next (x, y) read by the s-probe from
                            the *predicted* s; `no_change_position_r2` reads it from the
                            current s (the trivial baseline: predict no change)
@@ -364,6 +366,11 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     moved_slot = np.where(moved >= 0, owner[ep, tt, np.maximum(moved, 0)], -1)   # -1: a no-op
     ok = moved_slot >= 0
     hits = change.argmax(1)[ok] == moved_slot[ok]
+    holds_object = np.zeros(change.shape, bool)                        # (M, K)
+    for j in range(owner.shape[2]):
+        o = owner[ep, tt, j]
+        holds_object[np.arange(len(o))[o >= 0], o[o >= 0]] = True
+    misses_objectless = ~holds_object[ok][~hits, change.argmax(1)[ok][~hits]]
     read_pos = _ridge_fit(feats_s[train], target[train])
     m_test = ok & (ep >= E // 2)
     next_pos = pos[ep, tt + 1, moved][m_test]
@@ -381,6 +388,7 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
                                              feats_s[test & own_slot], target[test & own_slot]),
         "moved_slot_accuracy": float(hits.mean()),
         "moved_slot_chance": float(1.0 / K),
+        "moved_misses_objectless": float(misses_objectless.mean()) if len(misses_objectless) else 0.0,
         "predicted_position_r2": _r2(read_pos(pred_s), next_pos),
         "no_change_position_r2": _r2(read_pos(cur_s), next_pos),
         "episodes": int(E), "objects_matched": int(len(e_idx)), "transitions": int(ok.sum()),

@@ -100,7 +100,8 @@ def _stage(path: Path, key: dict, compute):
 # factorization_scores' measures that the seeds table reports (issue 12's targets)
 SPLIT_METRICS = ("type_invariance", "identity_from_z", "position_r2_from_s", "position_r2_from_z",
                  "own_slot_share", "position_r2_own_slots",
-                 "moved_slot_accuracy", "predicted_position_r2", "no_change_position_r2",
+                 "moved_slot_accuracy", "moved_misses_objectless", "predicted_position_r2",
+                 "no_change_position_r2",
                  "render_fg_error", "floor_fg_error", "predicted_render_error", "no_change_error",
                  "dvae_floor_max")
 

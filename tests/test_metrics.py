@@ -69,7 +69,7 @@ def test_ground_truth_slots_score_perfectly(buffer):
     assert r["position_r2_from_s"] > 0.999
     assert r["position_r2_from_z"] < 0.2                       # colour says nothing of place
     assert r["own_slot_share"] == 1.0 and r["position_r2_own_slots"] > 0.999
-    assert r["moved_slot_accuracy"] == 1.0
+    assert r["moved_slot_accuracy"] == 1.0 and r["moved_misses_objectless"] == 0.0
     assert r["predicted_position_r2"] > 0.99 > r["no_change_position_r2"]
     assert r["dvae_floor_max"] == 0.0
     assert "render_fg_error" not in r                          # the stand-in cannot render
@@ -80,6 +80,7 @@ def test_noise_states_and_a_random_dynamics_score_at_chance(buffer):
     r = factorization_scores(GroundTruthModel(buffer, broken=True), buffer)
     assert r["position_r2_from_s"] < 0.2
     assert r["moved_slot_accuracy"] < 0.5                      # chance is 1/4
+    assert 0.0 < r["moved_misses_objectless"] < 1.0            # some misses land on the floor's slot
     assert r["identity_from_z"] == 1.0                         # the types are still the colours
 
 
