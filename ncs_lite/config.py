@@ -573,6 +573,13 @@ def config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
     return out
 
 
+def saved_config_diff(saved: dict, cfg: DSlateConfig) -> list[str]:
+    """`config_diff` of a saved config (a checkpoint's) against `cfg`, the saved one read as
+    `from_dict` reads it: a field added since it was written counts as its default, not as a
+    difference."""
+    return config_diff(to_dict(from_dict(saved)), to_dict(cfg))
+
+
 def table2_rows(cfg: DSlateConfig | None = None) -> list[tuple[str, object]]:
     """Table 2 of the appendix, rendered from a config (default: the `paper` preset).
 

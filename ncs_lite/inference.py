@@ -125,7 +125,7 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
 
 def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
     """Why the cached checkpoint at `path` cannot be reused or resumed, or None."""
-    from .config import config_diff, to_dict
+    from .config import saved_config_diff
     from .data import manifest_hash
     from .training import training_code_version
 
@@ -133,7 +133,7 @@ def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
         ckpt = read_checkpoint(path)
     except ValueError as e:
         return f"it cannot be read ({e})"
-    diff = config_diff(ckpt["config"], to_dict(cfg))
+    diff = saved_config_diff(ckpt["config"], cfg)
     if diff:
         return f"it was trained with another config ({'; '.join(diff[:3])})"
     if ckpt.get("env") != env:

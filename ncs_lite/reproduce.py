@@ -219,11 +219,11 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
     """A seed's run of an earlier recipe that differs from `cfg` only in fields of its later
     phases (`training.EXTENDABLE`, e.g. the render phase) is kept as `dslate-step-N.pt` (and
     its log) for `seeds` to extend; any other difference is refused."""
-    from .config import config_diff, from_dict, to_dict
+    from .config import from_dict, saved_config_diff
     from .training import EXTENDABLE, read_checkpoint
 
     ckpt = read_checkpoint(ckpt_path)
-    differ = config_diff(ckpt["config"], to_dict(cfg))
+    differ = saved_config_diff(ckpt["config"], cfg)
     if not differ:
         return
     foreign = [d for d in differ if not d.startswith(tuple(f"{f}:" for f in EXTENDABLE))]

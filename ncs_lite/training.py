@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import DSlateConfig, config_diff, get_preset, to_dict
+from .config import DSlateConfig, get_preset, saved_config_diff, to_dict
 from .data.augment import permute_channels
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
@@ -243,7 +243,7 @@ def run_lock(out_path: Path):
 
 def _resume_differences(ckpt: dict, cfg, precision: str, env: str, data_meta: dict) -> list[str]:
     """What makes a checkpoint unfit to resume bit-for-bit: ['precision: fp32 != bf16', ...]."""
-    diff = config_diff(ckpt["config"], to_dict(cfg))
+    diff = saved_config_diff(ckpt["config"], cfg)
     old_data = ckpt.get("data") or {}
     pairs = [("precision", ckpt.get("precision"), precision), ("env", ckpt.get("env"), env),
              ("buffer manifest", old_data.get("manifest_sha256"), data_meta["manifest_sha256"]),

@@ -7,8 +7,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from ncs_lite.config import (DSlateConfig, config_diff, from_dict, get_preset, table2_rows,
-                             to_dict)
+from ncs_lite.config import (DSlateConfig, config_diff, from_dict, get_preset, saved_config_diff,
+                             table2_rows, to_dict)
 from ncs_lite.metrics import absorbed_by_background, adjusted_rand_index, foreground_ari
 from ncs_lite.models import DSlate, Dynamics, SlotAttention, TransformerDecoder, tau_schedule
 from ncs_lite.models.dvae import DVAE, patchify, unpatchify
@@ -502,3 +502,12 @@ def test_position_prior_gives_a_slot_that_attends_to_nothing_the_prior_state():
     cfg.slots.position_prior = -1.0
     with pytest.raises(ValueError, match="slots.position_prior must be >= 0, got -1"):
         cfg.validate()
+
+
+def test_a_saved_config_without_a_newer_field_reads_it_as_its_default():
+    cfg = get_preset("ci")
+    saved = to_dict(cfg)
+    del saved["train"]["render_lr"]                           # ci keeps the default
+    assert saved_config_diff(saved, cfg) == []
+    del saved["slots"]["position_prior"]                      # ci sets 2; the default is 0
+    assert saved_config_diff(saved, cfg) == ["slots.position_prior: 0.0 != 2.0"]
