@@ -126,10 +126,11 @@ RG_ASSETS := $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(ASSETS)/graph_robog
 robogym-assets: $(RG_ASSETS)
 $(RG_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 5000 --seed 0 --out $(RG_DATA)
-# trained before the per-slot polish (`reduced` since 17ffe74), the render phase and the
-# position prior: these overrides remake the shipped file
+# trained before the per-slot polish (`reduced` since 17ffe74), the render phase, the
+# position prior and the refit phase: these overrides remake the shipped file
 RG_RECIPE := --set train.polish_steps=600 --set train.polish_mixture_error=mixed \
-  --set mixture.render_hidden=0 --set train.render_steps=0 --set slots.position_prior=0
+  --set mixture.render_hidden=0 --set train.render_steps=0 --set slots.position_prior=0 \
+  --set train.refit_steps=0
 $(ASSETS)/dslate_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
 	$(PY) -m ncs_lite train --env robogym-rearrange --preset reduced $(RG_RECIPE) --data $(RG_DATA) --out $@ --seed 0
 $(RG_GRAPH_DATA)/manifest.json: | $(STAMP)

@@ -119,8 +119,10 @@ def lr_at(step: int, cfg: DSlateConfig) -> float:
     """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
     then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
     ('cosine'); then `polish_lr` for the polish steps, `dynamics_lr` and `render_lr` for the
-    dynamics and render phases."""
+    dynamics and render phases, `dynamics_lr` again for the refit phase."""
     t = cfg.train
+    if t.refit_steps and step >= t.render_end():
+        return t.dynamics_lr
     if t.render_steps and step >= t.dynamics_end():
         return t.render_lr
     if t.dynamics_steps and step >= t.polish_end():
@@ -265,7 +267,8 @@ def _check_continuable(ckpt: dict, what: str) -> None:
 EXTENDABLE = {"train.dynamics_steps": "polish_end", "train.dynamics_lr": "polish_end",
               "train.render_steps": "dynamics_end", "train.render_lr": "dynamics_end",
               "train.render_mask_steps": "dynamics_end",
-              "mixture.render_hidden": "dynamics_end", "slots.position_prior": "dynamics_end"}
+              "mixture.render_hidden": "dynamics_end", "slots.position_prior": "dynamics_end",
+              "train.refit_steps": "render_end"}
 # what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
 ADDED_BY_EXTENDING = ("renderer.",)
 
@@ -457,7 +460,9 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             model.position_prior = cfg.slots.position_prior if step >= cfg.train.dynamics_end() else 0.0
             with autocast(device, precision):
-                if step >= cfg.train.dynamics_end():     # the render phase: the renderer alone
+                if step >= cfg.train.render_end():       # the refit phase: the dynamics alone again
+                    out = model.dynamics_loss(frames, actions)
+                elif step >= cfg.train.dynamics_end():   # the render phase: the renderer alone
                     masks = step < cfg.train.dynamics_end() + cfg.train.render_mask_steps
                     out = model.render_loss(frames, masks=masks)
                 elif step >= cfg.train.polish_end():     # the dynamics phase: nothing else moves

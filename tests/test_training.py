@@ -109,11 +109,11 @@ def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_
 def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 render steps
     end = cfg.train.dynamics_end()
-    assert cfg.train.total_steps() == end + cfg.train.render_steps == end + 2
+    assert cfg.train.render_end() == end + cfg.train.render_steps == end + 2
     assert lr_at(end, cfg) == cfg.train.render_lr and lr_at(end - 1, cfg) == cfg.train.dynamics_lr
     before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
     before = {k: v.clone() for k, v in before.items()}
-    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=end + 2), weights_only=True)
     changed = {k for k in before if not torch.equal(before[k], after["model"][k])}
     assert changed and all(k.startswith("renderer.") for k in changed)
     rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
@@ -128,8 +128,25 @@ def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
         ci(render_mask_steps=3).validate()
 
 
+def test_refit_steps_train_the_dynamics_alone_again_after_the_render_phase(buffer, tmp_path):
+    cfg = ci()                                                # ... then 2 refit steps
+    end = cfg.train.render_end()
+    assert cfg.train.total_steps() == end + cfg.train.refit_steps == end + 2
+    assert lr_at(end, cfg) == cfg.train.dynamics_lr and lr_at(end - 1, cfg) == cfg.train.render_lr
+    before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
+    before = {k: v.clone() for k, v in before.items()}
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True), weights_only=True)
+    changed = {k for k in before if not torch.equal(before[k], after["model"][k])}
+    assert changed and all(k.startswith("dynamics.") for k in changed)
+    rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
+    assert all(float(r["latent"]) > 0 and float(r["loss"]) == float(r["latent"]) for r in rows)
+    with pytest.raises(ValueError, match="refit_steps must be an integer >= 0"):
+        ci(refit_steps=-1).validate()
+
+
 def _no_renderer(**train):
-    cfg = ci(**train)
+    """The recipe before the render phase (and the refit phase after it)."""
+    cfg = ci(**{"refit_steps": 0, **train})
     cfg.mixture.render_hidden = 0
     cfg.train.render_mask_steps = min(cfg.train.render_mask_steps, cfg.train.render_steps)
     return cfg
@@ -142,7 +159,7 @@ def test_extend_by_the_render_phase_equals_a_straight_run(buffer, tmp_path):
     out = train(ci(), buffer, tmp_path / "ext.pt", extend=done)
     straight = train(ci(), buffer, tmp_path / "straight.pt")
     a, b = torch.load(out, weights_only=True), torch.load(straight, weights_only=True)
-    assert a["step"] == b["step"] == plain.train.total_steps() + 2
+    assert a["step"] == b["step"] == plain.train.total_steps() + 4     # render and refit phases
     assert a["model"].keys() == b["model"].keys() and any(k.startswith("renderer.") for k in a["model"])
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
@@ -222,10 +239,12 @@ def test_schedules_and_batch_order():
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
     assert red.train.polish_end() == main + red.train.polish_steps == 3700
     assert red.train.dynamics_end() == 3700 + red.train.dynamics_steps == 5700
-    assert red.train.total_steps() == 5700 + red.train.render_steps == 9700
+    assert red.train.render_end() == 5700 + red.train.render_steps == 9700
+    assert red.train.total_steps() == 9700 + red.train.refit_steps == 11700
     assert lr_at(main, red) == lr_at(red.train.polish_end() - 1, red) == red.train.polish_lr
     assert lr_at(3700, red) == lr_at(5699, red) == red.train.dynamics_lr
     assert lr_at(5700, red) == lr_at(9699, red) == red.train.render_lr
+    assert lr_at(9700, red) == lr_at(11699, red) == red.train.dynamics_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
