@@ -426,7 +426,8 @@ def run_table(name: str, args) -> dict:
                                allow_dirty=args.allow_dirty, env=args.env)
     if name == "robogym":
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
-                             checkpoint=args.checkpoint, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
+                             checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
+                             out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
 
 
@@ -441,6 +442,8 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
     p.add_argument("--checkpoint", help="clusters, robogym: checkpoint (default: the shipped one)")
+    p.add_argument("--graph", help="robogym: the learned NCS graph on slot states (default: the shipped one)")
+    p.add_argument("--oracle-graph", help="robogym: the position oracle's graph (default: the shipped one)")
     p.add_argument("--episodes", type=int, default=None,
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
     p.add_argument("--mpc-episodes", type=int, default=None,

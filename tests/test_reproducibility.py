@@ -409,3 +409,11 @@ def test_a_table_stage_is_reused_only_for_the_same_inputs_and_code(tmp_path, mon
     monkeypatch.setattr(reproduce, "source_hash", lambda *parts: "edited")
     assert reproduce._stage(path, {"checkpoint": "b"}, compute) == 3       # other code
     assert json.loads(path.read_text())["key"] == {"checkpoint": "b", "code": "edited"}
+
+
+def test_reproduce_robogym_reads_the_given_graph(tmp_path, capsys):
+    (tmp_path / "half.pt").write_bytes(b"not a graph")
+    assert main(["reproduce", "robogym", "--graph", str(tmp_path / "half.pt"), "--out-dir", str(tmp_path),
+                 "--allow-dirty"]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "half.pt") in err and err.count("\n") == 1, err
