@@ -463,9 +463,9 @@ def _reduced() -> DSlateConfig:
       pixel loss alone, seed 1's renderer stayed near the floor (the README gives the runs).
     * from the render phase on, a prior of 2 grid cells on where a slot is
       (`slots.position_prior`): the spare slot, which holds nothing, took its state from
-      stray attention that jumps between frames, and the dynamics' misses of the moved slot
-      fell mostly on it (moved slot 0.83 ± 0.06 over 3 seeds before the prior,
-      docs/HISTORY.md). It acts on the render phase and every read after training, so
+      stray attention that jumps between frames (moved slot 0.83 ± 0.06 over 3 seeds before
+      the prior, docs/HISTORY.md; even with it, 0.83 ± 0.13 of the misses that remain fall on
+      a slot holding no object, `moved_misses_objectless`, README). It acts on the render phase and every read after training, so
       finished runs extend by it; slot attention learns without it.
     * 2,000 refit steps after the render phase (`train.refit_steps`): the dynamics alone
       again, on states read with the prior. The prior pulls a cube's centroid a little toward

@@ -365,12 +365,9 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     tt = np.tile(np.arange(T - 1), E)
     moved_slot = np.where(moved >= 0, owner[ep, tt, np.maximum(moved, 0)], -1)   # -1: a no-op
     ok = moved_slot >= 0
-    hits = change.argmax(1)[ok] == moved_slot[ok]
-    holds_object = np.zeros(change.shape, bool)                        # (M, K)
-    for j in range(owner.shape[2]):
-        o = owner[ep, tt, j]
-        holds_object[np.arange(len(o))[o >= 0], o[o >= 0]] = True
-    misses_objectless = ~holds_object[ok][~hits, change.argmax(1)[ok][~hits]]
+    largest = change.argmax(1)[ok]                                     # the slot it moves most
+    hits = largest == moved_slot[ok]
+    misses_objectless = ~(owner[ep, tt][ok] == largest[:, None]).any(1)[~hits]   # no object's slot
     read_pos = _ridge_fit(feats_s[train], target[train])
     m_test = ok & (ep >= E // 2)
     next_pos = pos[ep, tt + 1, moved][m_test]

@@ -14,7 +14,8 @@ What the loop guarantees:
   (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight), then
   optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss),
   then optional render steps (`TrainConfig.render_steps`: the renderer alone, mask then
-  pixel loss).
+  pixel loss), then optional refit steps (`TrainConfig.refit_steps`: the dynamics alone
+  again, on states read with `slots.position_prior`, which acts from the render phase on).
   With `TrainConfig.color_augment` the mixture loss reads each video with its colour
   channels permuted (data/augment.py), drawn from (seed, step) like the batch.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
@@ -33,9 +34,9 @@ What the loop guarantees:
   a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
   and loss log first, so the two never mix); a lock file (`<out>.lock`) makes two runs on
   one `out` refuse each other. `--extend` continues a *finished* run into a new file under a
-  schedule that only adds later phases (`EXTENDABLE`: the dynamics and render phases; the
-  renderer, which only the render phase trains, may be new), recording the run
-  it extends in `lineage`. Each checkpoint records the commit (`provenance`: writing
+  schedule that only adds later phases (`EXTENDABLE`: the dynamics, render and refit phases
+  and the position prior; the renderer, which only the render phase trains, may be new),
+  recording the run it extends in `lineage`. Each checkpoint records the commit (`provenance`: writing
   into `ncs_lite/assets/` from a dirty tree is refused), the `--set` overrides, and the
   buffer's path (relative to the repo) and manifest hash.
 """
@@ -460,12 +461,10 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
                 augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
             model.position_prior = cfg.slots.position_prior if step >= cfg.train.dynamics_end() else 0.0
             with autocast(device, precision):
-                if step >= cfg.train.render_end():       # the refit phase: the dynamics alone again
-                    out = model.dynamics_loss(frames, actions)
-                elif step >= cfg.train.dynamics_end():   # the render phase: the renderer alone
+                if cfg.train.dynamics_end() <= step < cfg.train.render_end():   # the renderer alone
                     masks = step < cfg.train.dynamics_end() + cfg.train.render_mask_steps
                     out = model.render_loss(frames, masks=masks)
-                elif step >= cfg.train.polish_end():     # the dynamics phase: nothing else moves
+                elif step >= cfg.train.polish_end():     # the dynamics and refit phases: it alone
                     out = model.dynamics_loss(frames, actions)
                 else:
                     out = forward(frames, actions, tau, dvae_only=dvae_only,
