@@ -161,8 +161,9 @@ class TrainConfig:
     # states without it, and a model that plans with the dynamics (MPC) reads them with it
     refit_steps: int = 0
     # colour augmentation of the segmentation path (kit, not in the paper; data/augment.py):
-    # "none" or "channels" = the mixture loss reads each video with its RGB channels in a
-    # random order; the decoder, dynamics and dVAE read the true colours
+    # "none"; "channels" = the mixture loss reads each video with its RGB channels in a
+    # random order; "channels_gamma" = and each channel raised to a random power. The
+    # decoder, dynamics and dVAE read the true colours
     color_augment: str = "none"
 
     def main_steps(self) -> int:

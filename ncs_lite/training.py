@@ -17,7 +17,8 @@ What the loop guarantees:
   pixel loss), then optional refit steps (`TrainConfig.refit_steps`: the dynamics alone
   again, on states read with `slots.position_prior`, which acts from the render phase on).
   With `TrainConfig.color_augment` the mixture loss reads each video with its colour
-  channels permuted (data/augment.py), drawn from (seed, step) like the batch.
+  channels permuted (and, with "channels_gamma", each raised to a random power;
+  data/augment.py), drawn from (seed, step) like the batch.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -54,7 +55,7 @@ import numpy as np
 import torch
 
 from .config import DSlateConfig, get_preset, saved_config_diff, to_dict
-from .data.augment import permute_channels
+from .data.augment import augment_colors
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
 from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
@@ -456,9 +457,10 @@ def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, e
 
             dvae_only = step < cfg.train.dvae_warmup_steps
             augmented = None
-            if cfg.train.color_augment == "channels" and not dvae_only and step < cfg.train.polish_end():
+            if cfg.train.color_augment != "none" and not dvae_only and step < cfg.train.polish_end():
                 # drawn from (seed, step) alone, like the batch, so a resumed run sees the same
-                augmented = permute_channels(frames, np.random.default_rng([cfg.train.seed, step, 1]))
+                augmented = augment_colors(cfg.train.color_augment, frames,
+                                           np.random.default_rng([cfg.train.seed, step, 1]))
             model.position_prior = cfg.slots.position_prior if step >= cfg.train.dynamics_end() else 0.0
             with autocast(device, precision):
                 if cfg.train.dynamics_end() <= step < cfg.train.render_end():   # the renderer alone

@@ -314,6 +314,28 @@ def test_permute_channels_reorders_each_video_once():
         permute_channels(videos[0], np.random.default_rng(0))
 
 
+def test_gamma_keeps_black_white_and_order_but_changes_how_close_two_colours_are():
+    import numpy as np
+
+    from ncs_lite.data.augment import augment_colors, permute_channels
+
+    # orange and yellow (block-rearrange's nearest pair) in every video, beside black and white
+    pixels = torch.tensor([[250, 140, 13], [242, 217, 26], [0, 0, 0], [255, 255, 255]], dtype=torch.uint8)
+    videos = pixels[None, None, None].expand(64, 2, 1, 4, 3).contiguous()
+    out = augment_colors("channels_gamma", videos, np.random.default_rng(0))
+    permuted = permute_channels(videos, np.random.default_rng(0))        # the orders come first
+    assert torch.equal(out[..., 2:, :], permuted[..., 2:, :])             # 0 and 255 are fixed points
+    assert torch.equal(out[:, 0], out[:, 1])                              # one draw per video
+    # a power is monotone: within a channel the order of the colours is kept
+    assert torch.equal(torch.sign(out[:, 0, 0, 0].int() - out[:, 0, 0, 1].int()),
+                       torch.sign(permuted[:, 0, 0, 0].int() - permuted[:, 0, 0, 1].int()))
+    gap = (out[:, 0, 0, 0].float() - out[:, 0, 0, 1].float()).norm(dim=-1) / 255
+    assert gap.min() < 0.2 < 0.45 < gap.max()                  # the 0.31 gap shrinks and stretches
+    assert torch.equal(out, augment_colors("channels_gamma", videos, np.random.default_rng(0)))
+    with pytest.raises(ValueError, match=r"colour augmentation must be one of 'channels', 'channels_gamma', got 'hue'"):
+        augment_colors("hue", videos, np.random.default_rng(0))
+
+
 def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_frames():
     torch.manual_seed(0)
     model = DSlate(get_preset("ci")).eval()                    # no dropout: equal inputs, equal losses

@@ -10,6 +10,12 @@ six) shows it 8 x 6 colours in which no fixed colour can be merged with the grey
 a sixth slot (one spare) no colour was absorbed in the runs that chose this (notebook 04).
 A channel permutation keeps every cube's shape, position and contrast with the floor.
 
+A permutation is an isometry of RGB space, though: it never changes how close two colours
+are, so it cannot teach slot attention to split two near ones (orange and yellow differ by
+0.31, mostly in green). `"channels_gamma"` also raises each channel of a video to a random
+power g (log-uniform in [1/2.5, 2.5]), which stretches some distances and shrinks others,
+so no fixed colour distance holds across the training videos.
+
 Shapes: videos (B, T, H, W, 3) uint8 -> the same, channels permuted per video.
 """
 from __future__ import annotations
@@ -17,9 +23,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["COLOR_AUGMENTS", "permute_channels"]
+__all__ = ["COLOR_AUGMENTS", "augment_colors", "permute_channels", "permute_channels_and_gamma"]
 
-COLOR_AUGMENTS = ("none", "channels")
+COLOR_AUGMENTS = ("none", "channels", "channels_gamma")
+GAMMA_RANGE = 2.5          # g in [1 / GAMMA_RANGE, GAMMA_RANGE], log-uniform
 
 
 def permute_channels(videos: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
@@ -30,3 +37,22 @@ def permute_channels(videos: torch.Tensor, rng: np.random.Generator) -> torch.Te
     B, C = videos.shape[0], videos.shape[-1]
     order = torch.from_numpy(np.stack([rng.permutation(C) for _ in range(B)]))    # (B, C)
     return torch.gather(videos, 4, order[:, None, None, None, :].to(videos.device).expand_as(videos))
+
+
+def permute_channels_and_gamma(videos: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """`permute_channels`, then each channel of each video raised to its own power g drawn
+    log-uniform in [1/GAMMA_RANGE, GAMMA_RANGE] (from `rng`, after the orders), on [0, 1]."""
+    permuted = permute_channels(videos, rng).float() / 255.0
+    B, C = videos.shape[0], videos.shape[-1]
+    g = torch.from_numpy(np.exp(rng.uniform(-np.log(GAMMA_RANGE), np.log(GAMMA_RANGE), size=(B, C)))).float()
+    out = permuted ** g[:, None, None, None, :].to(videos.device)
+    return (out * 255.0).round().to(videos.dtype)
+
+
+def augment_colors(kind: str, videos: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """The colour augmentation `kind` (one of COLOR_AUGMENTS but "none") of `videos`."""
+    if kind == "channels":
+        return permute_channels(videos, rng)
+    if kind == "channels_gamma":
+        return permute_channels_and_gamma(videos, rng)
+    raise ValueError(f"colour augmentation must be one of {', '.join(map(repr, COLOR_AUGMENTS[1:]))}, got {kind!r}")
