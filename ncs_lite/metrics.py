@@ -284,6 +284,23 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
             "all_positions": pos, "all_colours": colour, "colour_names": names}
 
 
+def shared_slot_pairs(owner: np.ndarray, background: np.ndarray, colours: np.ndarray, names) -> dict:
+    """owner (E, T, k) slot of each object (-1: no pixels), background (E, T) the floor's slot,
+    colours (E, k) colour ids named by `names` -> {"a+b" or "a+floor": frames}, most first."""
+    counts: dict[str, int] = {}
+    k = owner.shape[2]
+    present = owner >= 0
+    for a in range(k):
+        partners = [(b, present[..., a] & (owner[..., a] == owner[..., b])) for b in range(a + 1, k)]
+        partners.append((None, present[..., a] & (owner[..., a] == background)))
+        for b, hit in partners:
+            for e, t in zip(*np.nonzero(hit)):
+                name = names[colours[e, a]]
+                key = f"{name}+floor" if b is None else "+".join(sorted((name, names[colours[e, b]])))
+                counts[key] = counts.get(key, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
 @torch.no_grad()
 def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
                          batch_size: int = 50, matched: dict | None = None) -> dict:
@@ -303,6 +320,10 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
       position_r2_from_s / _from_z   ridge R^2 of the object's (x, y) from s / from z
       own_slot_share       share of the matched objects whose slot is their own (neither the
                            floor's nor shared): what the segmentation leaves to the split
+      own_slot_by_colour   {colour name: own_slot_share over that colour's objects}
+      shared_slot_pairs    {"a+b": frames in which an object of colour a and one of colour b
+                           share a slot; "a+floor": frames in which an a object is in the
+                           floor's slot}, most frequent first: which cubes the segmentation merges
       position_r2_own_slots   position_r2_from_s over those objects only (fitted and scored on
                            them): the split's own quality, segmentation failures aside
       moved_slot_accuracy  how often the dynamics' largest predicted state change (L2) is on
@@ -381,6 +402,8 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
         "position_r2_from_s": ridge_probe(feats_s[train], target[train], feats_s[test], target[test]),
         "position_r2_from_z": ridge_probe(feats_z[train], target[train], feats_z[test], target[test]),
         "own_slot_share": float(own_slot.mean()),
+        "own_slot_by_colour": {colour_names[c]: float(own_slot[labels == c].mean()) for c in np.unique(labels)},
+        "shared_slot_pairs": shared_slot_pairs(owner, f["background"], colour, colour_names),
         "position_r2_own_slots": ridge_probe(feats_s[train & own_slot], target[train & own_slot],
                                              feats_s[test & own_slot], target[test & own_slot]),
         "moved_slot_accuracy": float(hits.mean()),

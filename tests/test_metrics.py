@@ -100,7 +100,21 @@ def test_objects_sharing_a_slot_leave_the_own_slot_score(buffer):
 
     r = factorization_scores(Merged(buffer), buffer)
     assert r["own_slot_share"] == pytest.approx(1 / 3)         # object 2 of 3
+    assert sum(r["shared_slot_pairs"].values()) == r["objects_matched"] // 3   # one pair per frame
     assert r["position_r2_own_slots"] > 0.999 > r["position_r2_from_s"]
+
+
+def test_shared_slot_pairs_name_the_colours_a_slot_merges():
+    from ncs_lite.metrics import shared_slot_pairs
+
+    names = ["red", "orange", "yellow"]
+    colours = np.array([[1, 2, 0], [2, 1, 0]])                  # (E=2, k=3)
+    owner = np.array([[[1, 1, 2], [1, 2, 3]],                   # episode 0: orange+yellow share slot 1 once
+                      [[2, 2, 0], [-1, 3, 0]]])                 # episode 1: once, then red in the floor's slot 0
+    background = np.array([[0, 0], [0, 0]])
+    assert shared_slot_pairs(owner, background, colours, names) == {"orange+yellow": 2, "red+floor": 2}
+    # an object without pixels (-1) shares nothing, even with another object without pixels
+    assert shared_slot_pairs(np.full((1, 1, 2), -1), np.zeros((1, 1), int), colours[:1, :2], names) == {}
 
 
 def test_ridge_probe_reads_a_linear_map_and_not_noise():
