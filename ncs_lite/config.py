@@ -466,8 +466,9 @@ def _reduced() -> DSlateConfig:
       (`slots.position_prior`): the spare slot, which holds nothing, took its state from
       stray attention that jumps between frames (moved slot 0.83 ± 0.06 over 3 seeds before
       the prior, docs/HISTORY.md; even with it, 0.83 ± 0.13 of the misses that remain fall on
-      a slot holding no object, `moved_misses_objectless`, README). It acts on the render phase and every read after training, so
-      finished runs extend by it; slot attention learns without it.
+      a slot holding no object, `moved_misses_objectless`, README). It acts on the render
+      phase and every read after training, so finished runs extend by it; slot attention
+      learns without it.
     * 2,000 refit steps after the render phase (`train.refit_steps`): the dynamics alone
       again, on states read with the prior. The prior pulls a cube's centroid a little toward
       the image's centre; a dynamics fitted without it mispredicts where a pick lands, and

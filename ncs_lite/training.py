@@ -37,9 +37,9 @@ What the loop guarantees:
   one `out` refuse each other. `--extend` continues a *finished* run into a new file under a
   schedule that only adds later phases (`EXTENDABLE`: the dynamics, render and refit phases
   and the position prior; the renderer, which only the render phase trains, may be new),
-  recording the run it extends in `lineage`. Each checkpoint records the commit (`provenance`: writing
-  into `ncs_lite/assets/` from a dirty tree is refused), the `--set` overrides, and the
-  buffer's path (relative to the repo) and manifest hash.
+  recording the run it extends in `lineage`. Each checkpoint records the commit
+  (`provenance`: writing into `ncs_lite/assets/` from a dirty tree is refused), the `--set`
+  overrides, and the buffer's path (relative to the repo) and manifest hash.
 """
 from __future__ import annotations
 

@@ -9,9 +9,10 @@ from its one call). A block-rearrange step is that render plus bookkeeping; a
 robogym-rearrange step is the two passes plus the settle's physics.
 `ratio_to_render` says how close to that floor an env runs. For robogym-rearrange,
 `ratio_to_one_rgb_pass` is the step rate against one bare RGB pass (a reference that leaves
-out the segmentation pass every step must draw; the bench's reference before), `ms_per_call` times the parts of a step on the scene the
-steps left (both passes, the settle, the random action's free-spot search), and
-`ratio_to_both_passes` is the step rate against the env's own two passes.
+out the segmentation pass every step must draw; the bench's reference before),
+`ms_per_call` times the parts of a step on the scene the steps left (both passes, the
+settle, the random action's free-spot search), and `ratio_to_both_passes` is the step rate
+against the env's own two passes.
 """
 from __future__ import annotations
 
@@ -81,8 +82,8 @@ def run(seconds: float = 2.0) -> dict:
 
     parts = {"rgb_and_segmentation": lambda env, rng: env._render(), "settle": lambda env, rng: env._settle(),
              "random_action": lambda env, rng: env.random_pick_and_move(rng)}
-    rg = _measure(robogym, bare_rgb_and_segmentation, {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"},
-                  seconds, parts)
+    rg = _measure(robogym, bare_rgb_and_segmentation,
+                  {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"}, seconds, parts)
     both_passes = 1e3 / rg["ms_per_call"]["rgb_and_segmentation"]
     rg["own_passes_per_s"] = round(both_passes, 1)
     rg["ratio_to_both_passes"] = round(rg["transitions_per_s"] / both_passes, 3)

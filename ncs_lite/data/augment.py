@@ -25,7 +25,6 @@ import torch
 
 __all__ = ["COLOR_AUGMENTS", "augment_colors", "permute_channels", "permute_channels_and_gamma"]
 
-COLOR_AUGMENTS = ("none", "channels", "channels_gamma")
 GAMMA_RANGE = 2.5          # g in [1 / GAMMA_RANGE, GAMMA_RANGE], log-uniform
 
 
@@ -49,10 +48,12 @@ def permute_channels_and_gamma(videos: torch.Tensor, rng: np.random.Generator) -
     return (out * 255.0).round().to(videos.dtype)
 
 
+AUGMENTS = {"channels": permute_channels, "channels_gamma": permute_channels_and_gamma}
+COLOR_AUGMENTS = ("none", *AUGMENTS)
+
+
 def augment_colors(kind: str, videos: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
-    """The colour augmentation `kind` (one of COLOR_AUGMENTS but "none") of `videos`."""
-    if kind == "channels":
-        return permute_channels(videos, rng)
-    if kind == "channels_gamma":
-        return permute_channels_and_gamma(videos, rng)
-    raise ValueError(f"colour augmentation must be one of {', '.join(map(repr, COLOR_AUGMENTS[1:]))}, got {kind!r}")
+    """The colour augmentation `kind` (a key of AUGMENTS) of `videos`."""
+    if kind not in AUGMENTS:
+        raise ValueError(f"colour augmentation must be one of {', '.join(map(repr, AUGMENTS))}, got {kind!r}")
+    return AUGMENTS[kind](videos, rng)
