@@ -50,7 +50,7 @@ def _graph(args):
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
-                                   restarts=cfg.restarts, state=cfg.state))
+                                   restarts=cfg.graph_restarts, state=cfg.state))
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
     graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
                         seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info

@@ -84,7 +84,8 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset,
            "env": env, "ncs": ncs}
     # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
-    for name, perception in (("", learned_perception(model, 4, ncs)), ("oracle_", OraclePerception(ORACLE_STATES[state]))):
+    read = learned_perception(model, 4, replace(ncs, restarts=ncs.graph_restarts))   # as `graph` reads the buffer
+    for name, perception in (("", read), ("oracle_", OraclePerception(ORACLE_STATES[state]))):
         st, st1, acts, true = buffer_transitions(perception, data)
         graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
                             edge_action=ncs.edge_action)

@@ -371,7 +371,10 @@ def _check_field_types(cfg, where: str = "") -> None:
 class NCSConfig:
     """How NCS reads a model and builds its graph (`graph`, `evaluate`; Tables 3-4)."""
     clusters: int = 30          # graph nodes, Table 4 (block-rearrange 30)
-    restarts: int = 8           # slot-attention restarts per image (DSlatePerception)
+    restarts: int | None = None  # slot-attention restarts per image when an agent reads a scene
+    #                             (DSlatePerception); None = the model's env's (ncs.perception.
+    #                             RESTARTS_BY_ENV: 32 block-rearrange, 8 robogym-rearrange)
+    graph_restarts: int = 8     # ... per frame when `graph` and `graph-nf` read the buffer's videos
     iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
     extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
     seed: int = 0               # k-means seed
@@ -390,9 +393,11 @@ class NCSConfig:
     #                             this share of the buffer's moves (1 = whole states; ncs.graph)
 
     def validate(self) -> "NCSConfig":
-        for name, low in (("clusters", 1), ("restarts", 1), ("iterations", 1), ("extra_slots", 0),
-                          ("seed", 0)):
+        for name, low in (("clusters", 1), ("restarts", 1), ("graph_restarts", 1), ("iterations", 1),
+                          ("extra_slots", 0), ("seed", 0)):
             value = getattr(self, name)
+            if name == "restarts" and value is None:      # the env's default
+                continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"ncs.{name} must be an integer >= {low}, got {value!r}")
         states = ("mask", "slot")   # = sorted(ncs.graph.METRICS_BY_STATE), checked by a test
@@ -645,8 +650,14 @@ def parse_override(text: str) -> tuple[str, str]:
 
 
 def _convert(raw: str, kind, where: str):
-    """The text of an override as the field's type (int, float, str, bool)."""
+    """The text of an override as the field's type (int, float, str, bool); an optional
+    field (`int | None`) also takes "none"."""
     kind = {"int": int, "float": float, "str": str, "bool": bool}.get(kind, kind)
+    optional = [a for a in typing.get_args(kind) if a is not type(None)]
+    if type(None) in typing.get_args(kind):
+        if raw.lower() == "none":
+            return None
+        kind = optional[0]
     try:
         if kind is bool:
             if raw.lower() not in ("true", "false", "1", "0"):

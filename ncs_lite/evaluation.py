@@ -138,15 +138,15 @@ NEED_NAMES = {"graph": "transition graph (--graph)", "model": "dSLATE checkpoint
 def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
     objects with: one slot per object plus `ncs.extra_slots` (the background's), at least
-    the model's K, and the restarts, iterations and kind of state of `ncs` (an `NCSConfig`,
-    default the paper's reading)."""
+    the model's K, and the restarts (`acting_restarts`), iterations and kind of state of `ncs`
+    (an `NCSConfig`, default the paper's reading)."""
     from .config import NCSConfig
-    from .ncs.perception import DSlatePerception
+    from .ncs.perception import DSlatePerception, acting_restarts
 
     ncs = ncs or NCSConfig()
     slots = max(model.cfg.slots.num_slots, num_objects + ncs.extra_slots)
-    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots, restarts=ncs.restarts,
-                            state=ncs.state)
+    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots,
+                            restarts=acting_restarts(ncs, model), state=ncs.state)
 
 
 def state_features(method: str, state: str, model=None) -> int | None:

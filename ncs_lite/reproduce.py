@@ -125,7 +125,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .inference import load_dslate
     from .metrics import factorization_scores
     from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import DSlatePerception, buffer_transitions
+    from .ncs.perception import DSlatePerception, acting_restarts, buffer_transitions
     from .training import read_checkpoint, train
 
     from .comparison import GRAPH_EPISODES
@@ -163,7 +163,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                            100, env=env, num_objects=4, seed=1000))))
         row.update({f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS})
         for k in (4, 7):
-            for restarts in (1, NCSConfig().restarts):
+            for restarts in (1, acting_restarts(NCSConfig(), model)):
                 seg = _stage(folder / f"segmentation-k{k}-r{restarts}.json",
                              {"checkpoint": ckpt_hash, "images": images},
                              lambda: segmentation_scores(model, k, images, restarts))
@@ -179,7 +179,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             if graph is None or graph.info.get("key") != graph_key:
                 print(f"seed {seed}: graph on {state} states", flush=True)
                 # the same cached buffer pass and build as `python -m ncs_lite graph`
-                perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.restarts,
+                perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.graph_restarts,
                                               state=state)
                 states_t, states_t1, actions, moved = buffer_transitions(
                     perception, cached_buffer(graph_episodes, env=env, seed=0))
@@ -262,7 +262,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
     model = load_dslate(checkpoint)
     data = Path(data) if data else cached_buffer(GRAPH_EPISODES["reduced"], num_objects=4, seed=0)
     base = NCSConfig()
-    perception = DSlatePerception(model, iterations=base.iterations, restarts=base.restarts)
+    perception = DSlatePerception(model, iterations=base.iterations, restarts=base.graph_restarts)
     states_t, states_t1, actions, true_slot = buffer_transitions(perception, data)
     rows = []
     for n in progress(clusters, desc="clusters"):
@@ -341,6 +341,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     from .inference import ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, load_dslate
     from .metrics import factorization_scores
     from .ncs.graph import TransitionGraph
+    from .ncs.perception import acting_restarts
 
     env = "robogym-rearrange"
     paths = {"checkpoint": Path(checkpoint or ROBOGYM_CHECKPOINT), "graph": Path(graph or ROBOGYM_SLOT_GRAPH),
@@ -352,7 +353,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     split = factorization_scores(model, load_buffer(cached_buffer(100, env=env, num_objects=4, seed=HELDOUT_SEED)))
     row = {"train_minutes": round(float(model.checkpoint_info["seconds"]) / 60, 1),
            **{f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS}}
-    for restarts in (1, ncs.restarts):
+    for restarts in (1, acting_restarts(ncs, model)):
         seg = segmentation_scores(model, 4, images, restarts, env=env)
         row[f"fg_ari_4_r{restarts}"] = round(seg["fg_ari"], 4)
         row[f"absorbed_4_r{restarts}"] = round(seg["absorbed"], 4)

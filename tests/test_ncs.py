@@ -449,10 +449,18 @@ def test_state_reaches_perception_and_cache_keys(position_graph, oracle_graph, m
     import ncs_lite.cache
     from ncs_lite.config import NCSConfig
     from ncs_lite.evaluation import evaluate_method, learned_perception
+    from ncs_lite.ncs.perception import RESTARTS, RESTARTS_BY_ENV
 
     model = SimpleNamespace(cfg=SimpleNamespace(slots=SimpleNamespace(num_slots=3)))
     assert learned_perception(model, 4, NCSConfig(state="slot")).state == "slot"
     assert learned_perception(model, 4).state == "mask"
+    # restarts: the config's, else those of the env the model was trained on
+    assert learned_perception(model, 4).restarts == RESTARTS            # a model that names no env
+    for env, restarts in RESTARTS_BY_ENV.items():
+        model.checkpoint_info = {"env": env}
+        assert learned_perception(model, 4).restarts == restarts
+        assert learned_perception(model, 4, NCSConfig(restarts=3)).restarts == 3
+    assert RESTARTS_BY_ENV["block-rearrange"] > NCSConfig().graph_restarts == RESTARTS
     keys = []
     monkeypatch.setattr(ncs_lite.cache, "cached", lambda name, compute, **key: keys.append(key) or [])
     tasks = TaskSet(episodes=1)

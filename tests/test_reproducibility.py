@@ -60,6 +60,13 @@ def test_ncs_overrides():
         ncs_config(["train.lr=1"])
     with pytest.raises(ValueError, match="ncs.restarts must be an integer >= 1"):
         ncs_config(["ncs.restarts=0"])
+    assert ncs_config(["ncs.restarts=32"]).restarts == 32 and NCSConfig().restarts is None   # None: the env's
+    assert ncs_config(["ncs.restarts=32", "ncs.restarts=none"]).restarts is None
+    assert ncs_config(["ncs.graph_restarts=2"]).graph_restarts == 2
+    with pytest.raises(ValueError, match="ncs.graph_restarts must be an integer >= 1, got 0"):
+        ncs_config(["ncs.graph_restarts=0"])
+    with pytest.raises(ValueError, match=r"restarts=x: expected a finite int, got 'x'"):
+        ncs_config(["ncs.restarts=x"])
     assert ncs_config(["ncs.nearest_variance=1"]).nearest_variance == 1
     with pytest.raises(ValueError, match=r"ncs.nearest_variance must be a number in \(0, 1\], got 1.5"):
         ncs_config(["ncs.nearest_variance=1.5"])

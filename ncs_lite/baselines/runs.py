@@ -167,7 +167,7 @@ def _graph_nf(args) -> None:
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
-                                   restarts=cfg.restarts, state=cfg.state))
+                                   restarts=cfg.graph_restarts, state=cfg.state))
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
         graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)

@@ -418,7 +418,8 @@ class DSlate(nn.Module):
         the one the model itself reconstructs best (`reconstruction_error`: no ground truth).
         Slot attention is a local search: now and then two slots share a cube and another
         cube falls into the background slot, and a fresh start usually avoids it (notebook 03
-        measures fg-ARI with one start and with `ncs.perception.RESTARTS`).
+        measures fg-ARI with one start and with the restarts NCS acts with,
+        `ncs.perception.RESTARTS_BY_ENV`).
         """
         if not isinstance(restarts, int) or restarts < 1:
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
