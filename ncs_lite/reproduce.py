@@ -104,6 +104,9 @@ SPLIT_METRICS = ("type_invariance", "identity_from_z", "position_r2_from_s", "po
                  "no_change_position_r2",
                  "render_fg_error", "floor_fg_error", "predicted_render_error", "no_change_error",
                  "dvae_floor_max")
+# ... and those it also reports with the restarts NCS acts with (what NCS and MPC read)
+SPLIT_METRICS_RESTARTS = ("identity_from_z", "position_r2_from_s", "own_slot_share", "moved_slot_accuracy",
+                          "predicted_position_r2", "render_fg_error")
 
 
 def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | None = None,
@@ -117,9 +120,10 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     first `graph_episodes` (default `comparison.GRAPH_EPISODES`) episodes (`clusters` nodes)
     and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x). Resumable (every stage
     is keyed by what it depends on); a run of another recipe in `runs` is refused, one that
-    lacks only the recipe's later phases (e.g. the render phase) is kept and extended. Hours on
-    a CPU."""
-    from .config import NCSConfig, apply_overrides, get_preset, to_dict
+    lacks only the recipe's later phases (e.g. the render phase) is kept and extended.
+    `overrides` of the `ncs` section (`ncs.restarts=8`) set how NCS reads the models and builds
+    its graphs; the others set the recipe. Hours on a CPU."""
+    from .config import apply_overrides, get_preset, ncs_config, to_dict
     from .data import cached_buffer, load_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
@@ -132,6 +136,9 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .inference import TRAIN_EPISODES
 
     runs = Path(runs) if runs else cache_dir() / "seeds"
+    ncs_overrides = [o for o in overrides if str(o).startswith("ncs.")]
+    overrides = [o for o in overrides if not str(o).startswith("ncs.")]
+    base = ncs_config(ncs_overrides, clusters=clusters)
     train_episodes = TRAIN_EPISODES[preset]
     graph_episodes = graph_episodes or min(GRAPH_EPISODES[preset], train_episodes)
     images = images or (20 if preset == "ci" else 200)
@@ -158,19 +165,24 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
 
         row = {"seed": seed, "train_minutes": round(float(ckpt["seconds"]) / 60, 1),
                "commit": (ckpt.get("code_version") or {}).get("commit")}
+        heldout = cached_buffer(100, env=env, num_objects=4, seed=1000)
         split = _stage(folder / "factorization.json", {"checkpoint": ckpt_hash, "episodes": 100},
-                       lambda: factorization_scores(model, load_buffer(cached_buffer(
-                           100, env=env, num_objects=4, seed=1000))))
+                       lambda: factorization_scores(model, load_buffer(heldout)))
         row.update({f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS})
+        # the same read with the restarts NCS acts with (on each video's first frame)
+        acting = acting_restarts(base, model)
+        split = _stage(folder / f"factorization-r{acting}.json", {"checkpoint": ckpt_hash, "episodes": 100},
+                       lambda: factorization_scores(model, load_buffer(heldout), restarts=acting))
+        row.update({f"split_r{acting}_{m}": round(split[m], 4) for m in SPLIT_METRICS_RESTARTS})
         for k in (4, 7):
-            for restarts in (1, acting_restarts(NCSConfig(), model)):
+            for restarts in (1, acting):
                 seg = _stage(folder / f"segmentation-k{k}-r{restarts}.json",
                              {"checkpoint": ckpt_hash, "images": images},
                              lambda: segmentation_scores(model, k, images, restarts))
                 row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
                 row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
         for state in ("mask", "slot"):
-            ncs = NCSConfig(clusters=clusters, state=state)
+            ncs = ncs_config(ncs_overrides, clusters=clusters, state=state)
             suffix = "" if state == "mask" else "_slot"
             graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
             graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
@@ -210,7 +222,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     meta = {"preset": preset, "overrides": list(overrides), "seeds": list(seeds),
             "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
             "objects": list(objects), "images": images, "clusters": clusters,
-            "ncs": to_dict(NCSConfig(clusters=clusters)), "summary": summary}
+            "ncs": to_dict(base), "ncs_overrides": ncs_overrides, "summary": summary}
     write_table(f"seeds_{preset}", rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "summary": summary}
 

@@ -263,6 +263,8 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
           "--out", str(tmp_path / "bc.pt")], f"the buffer {buf} was collected on 'block-rearrange', not --env"),
         (["reproduce", "seeds", "--preset", "bogus"], "unknown preset 'bogus' for the seeds table"),
         (["reproduce", "seeds", "--preset", "ci", "--episodes", "0"], "--episodes must be an integer >= 1, got 0"),
+        (["reproduce", "seeds", "--preset", "ci", "--set", "ncs.restarts=0", "--runs", str(tmp_path)],
+         "ncs.restarts must be an integer >= 1, got 0"),
         (["reproduce", "baselines", "--env", "bogus"], "unknown --env 'bogus'; expected one of block-rearrange"),
         (["reproduce", "clusters", "--env", "robogym-rearrange"], "--env is for the baselines table"),
         (["reproduce", "clusters", "--out-dir", str(afile)], f"--out-dir {afile} is a file; expected a table directory"),

@@ -4,13 +4,18 @@ Measured for the oracle (ground-truth entities: the planning cost alone) and, wh
 shipped dSLATE checkpoint is present, for learned NCS (slot inference with 7 iterations
 included) on 4- and 7-object scenes, on mask states and on slot states (`--state slot`);
 the bare `model.infer` of one image, measured in the same run, is the reference that tells
-how much of a decision is perception.
+how much of a decision is perception, and the same inference with 1 to 64 restarts
+(`RESTART_COUNTS`) what each restart costs.
 """
 from __future__ import annotations
 
 import time
 
 import numpy as np
+
+
+# slot-attention restarts whose inference time the bench also measures (ncs.perception)
+RESTART_COUNTS = (1, 8, 16, 32, 64)
 
 
 def _per_call(fn, n: int) -> float:
@@ -56,6 +61,9 @@ def run(steps: int = 50) -> dict:
             row["slot_inference_ms"] = 1e3 * _per_call(lambda: agent.perception.current(obs), steps)
             row["restarts"] = agent.perception.restarts
             row["perception_share"] = row["slot_inference_ms"] / row["ncs_ms_per_decision"]
+            for r in RESTART_COUNTS:   # what a restart costs, for choosing how many
+                read = DSlatePerception(model, num_slots=agent.perception.num_slots, restarts=r)
+                row[f"slot_inference_ms_r{r}"] = 1e3 * _per_call(lambda: read.current(obs), steps)
         out[f"{k}_objects"] = {key: round(v, 3) for key, v in row.items()}
         env.close()
     if model is None:
