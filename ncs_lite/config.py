@@ -653,11 +653,10 @@ def _convert(raw: str, kind, where: str):
     """The text of an override as the field's type (int, float, str, bool); an optional
     field (`int | None`) also takes "none"."""
     kind = {"int": int, "float": float, "str": str, "bool": bool}.get(kind, kind)
-    optional = [a for a in typing.get_args(kind) if a is not type(None)]
-    if type(None) in typing.get_args(kind):
+    if type(None) in typing.get_args(kind):                    # `X | None`
         if raw.lower() == "none":
             return None
-        kind = optional[0]
+        kind = next(a for a in typing.get_args(kind) if a is not type(None))
     try:
         if kind is bool:
             if raw.lower() not in ("true", "false", "1", "0"):
