@@ -20,7 +20,7 @@ from .utils import atomic_write_text, progress
 
 COLUMNS = ("method", "env", "num_objects", "goal", "num_constrained", "horizon_multiplier",
            "action_noise", "seed", "episode", "task_seed", "success", "steps", "min_steps",
-           "horizon", "random_actions")
+           "horizon", "random_actions", "noop_actions")
 
 
 @dataclass(frozen=True)
@@ -71,15 +71,16 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
 def run_episode(agent, env, seed: int) -> dict:
     obs, info = env.reset(seed=seed)
     agent.reset(obs, info)
-    steps = randoms = 0
+    steps = randoms = noops = 0
     terminated = truncated = False
     while not (terminated or truncated):
         action, was_random = agent.act(obs, info)
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         randoms += bool(was_random)
+        noops += info["moved"] < 0          # the pick found no object, or the place was refused
     return {"success": int(terminated), "steps": steps, "min_steps": info["min_steps"],
-            "horizon": info["horizon"], "random_actions": randoms}
+            "horizon": info["horizon"], "random_actions": randoms, "noop_actions": noops}
 
 
 def evaluate(make_agent, tasks: TaskSet, method: str) -> list[dict]:
@@ -98,9 +99,10 @@ def evaluate(make_agent, tasks: TaskSet, method: str) -> list[dict]:
 
 
 def summarize(rows: list[dict]) -> list[dict]:
-    """Rows grouped by everything but the episode -> success, 95% CI, mean steps, randoms."""
+    """Rows grouped by everything but the episode -> success, 95% CI, mean steps, and the
+    shares of actions that were random fallbacks and that changed nothing (no-ops)."""
     keys = [c for c in COLUMNS if c not in ("episode", "task_seed", "success", "steps",
-                                            "min_steps", "horizon", "random_actions")]
+                                            "min_steps", "horizon", "random_actions", "noop_actions")]
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in keys), []).append(r)
@@ -111,7 +113,8 @@ def summarize(rows: list[dict]) -> list[dict]:
         steps = sum(r["steps"] for r in rs)
         out.append({**dict(zip(keys, key)), "episodes": n, "success": s / n, "ci_low": lo,
                     "ci_high": hi, "mean_steps": steps / n,
-                    "random_fraction": sum(r["random_actions"] for r in rs) / max(1, steps)})
+                    "random_fraction": sum(r["random_actions"] for r in rs) / max(1, steps),
+                    "noop_fraction": sum(r["noop_actions"] for r in rs) / max(1, steps)})
     return out
 
 
@@ -286,7 +289,7 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
     restart. Ground truth is read here to *measure* only. Cached like `evaluate_method`.
     """
     from .config import NCSConfig
-    from .metrics import slot_assignment
+    from .metrics import shared_with_another, slot_assignment
 
     perception = learned_perception(model, tasks.num_objects, ncs)
 
@@ -299,8 +302,7 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
                 masks = np.stack([perception.current(obs).masks.numpy(), perception.goal(obs).masks.numpy()])
                 owner, background = slot_assignment(masks, np.stack([info["masks"], info["goal_masks"]]))
                 absorbed.append((owner >= 0) & (owner == background[:, None]))              # (2, k)
-                same = (owner[:, :, None] == owner[:, None, :]) & (owner[:, :, None] >= 0)  # (2, k, k)
-                shared.append((same.sum(-1) > 1) & ~absorbed[-1])
+                shared.append(shared_with_another(owner, background))
         finally:
             env.close()
         return {"absorbed": np.stack(absorbed), "shared": np.stack(shared)}

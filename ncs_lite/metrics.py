@@ -114,6 +114,17 @@ def absorbed_by_background(pred_masks, true_masks) -> np.ndarray:
     return (owner >= 0) & (owner == background[:, None])
 
 
+def shared_with_another(owner: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """Which objects share their slot with another object, (B, k) bool, from
+    `slot_assignment`'s owner (B, k) and background (B,): two cubes in one slot are one
+    entity to NCS, with one type between theirs and one state between their cells. An object
+    absorbed into the floor's slot, or without pixels, is not counted here."""
+    owner, background = np.asarray(owner), np.asarray(background)
+    present = owner >= 0
+    holders = ((owner[:, :, None] == owner[:, None, :]) & present[:, None, :]).sum(-1)
+    return present & (owner != background[:, None]) & (holders > 1)
+
+
 def lost_in_reconstruction(reconstructions, images, true_masks) -> np.ndarray:
     """Which objects a reconstruction paints as background, (B, k) bool.
 

@@ -39,25 +39,37 @@ def mean_sd(values) -> dict:
 
 def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
                         seed: int = 0, env: str = "block-rearrange") -> dict:
-    """Held-out fg-ARI and the share of cubes absorbed into the floor's slot, as notebook 03
-    measures them: `images` frames of the held-out buffer (seed + 1000), 7 iterations, one
-    slot per object plus one (at least the model's K), `restarts` starts per image."""
+    """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
+    share a slot with another cube (`shared`; `pairs`: the colour pairs found sharing one, in
+    how many frames, most first), as notebook 03 measures them: `images` frames of the
+    held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
+    model's K), `restarts` starts per image."""
     from .data import cached_buffer, load_buffer
-    from .metrics import absorbed_by_background, foreground_ari
+    from .metrics import _colour_ids, foreground_ari, shared_slot_pairs, shared_with_another, slot_assignment
 
     data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
                                      seed=seed + HELDOUT_SEED))
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
     masks = data["masks"].reshape(-1, *data["masks"].shape[2:])[:images]
+    colours, names = _colour_ids(data["colors"])                       # (E, k) per episode
+    colours = np.repeat(colours, data["frames"].shape[1], axis=0)[:images]   # ... per frame
     slots = max(model.cfg.slots.num_slots, num_objects + 1)
-    aris, absorbed = [], []
+    aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
         r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
         aris.append(foreground_ari(r.masks, masks[i:i + 50]))
-        absorbed.append(absorbed_by_background(r.masks, masks[i:i + 50]))
+        owner, background = slot_assignment(r.masks, masks[i:i + 50])
+        owners.append(owner)
+        backgrounds.append(background)
+    owner, background = np.concatenate(owners), np.concatenate(backgrounds)
+    present = owner >= 0
+    absorbed = present & (owner == background[:, None])
+    shared = shared_with_another(owner, background)
+    pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
     return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
-            "absorbed": float(np.concatenate(absorbed).mean()), "images": int(len(frames)),
-            "num_slots": int(slots), "restarts": int(restarts)}
+            "absorbed": float(absorbed.mean()), "shared": float(shared[present].mean()),
+            "pairs": {k: v for k, v in pairs.items() if not k.endswith("+floor")},
+            "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
 
 
 # ---------------------------------------------------------------------- writing a table
@@ -181,6 +193,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                              lambda: segmentation_scores(model, k, images, restarts))
                 row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
                 row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
+                row[f"shared_{k}_r{restarts}"] = round(seg["shared"], 4)
+                row[f"pairs_{k}_r{restarts}"] = ", ".join(f"{p} {n}" for p, n in list(seg["pairs"].items())[:3])
         for state in ("mask", "slot"):
             ncs = ncs_config(ncs_overrides, clusters=clusters, state=state)
             suffix = "" if state == "mask" else "_slot"
@@ -213,10 +227,11 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 row[f"ncs{suffix}_{k}"] = s["success"]
                 row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
                 row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
+                row[f"noop_fraction{suffix}_{k}"] = round(s["noop_fraction"], 3)
         rows.append(row)
         print(json.dumps(row), flush=True)
 
-    metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "train_minutes",
+    metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "shared_", "train_minutes",
                                                    "split_")) and not c.endswith("_ci")]
     summary = {m: mean_sd([r[m] for r in rows]) for m in metrics}
     meta = {"preset": preset, "overrides": list(overrides), "seeds": list(seeds),
@@ -286,6 +301,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
             s = summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=base), tasks, "ncs"))[0]
             row[f"ncs_{k}"], row[f"ncs_{k}_ci"] = s["success"], f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
             row[f"random_fraction_{k}"] = round(s["random_fraction"], 3)
+            row[f"noop_fraction_{k}"] = round(s["noop_fraction"], 3)
         rows.append(row)
         print(json.dumps(row), flush=True)
     meta = {"checkpoint": relative_to_repo(checkpoint), "checkpoint_sha256": sha256_file(checkpoint),
@@ -326,7 +342,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     assets = comparison_assets(preset, env=env)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
     keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "random_fraction",
-            "mean_steps")
+            "noop_fraction", "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
              for r in summarize(rows)]
     write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
@@ -382,6 +398,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
             row[f"{key}_{k}"] = s["success"]
             row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
             row[f"{key}_random_fraction_{k}"] = round(s["random_fraction"], 3)
+            row[f"{key}_noop_fraction_{k}"] = round(s["noop_fraction"], 3)
         print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
     meta = {"env": env, "episodes": episodes, "objects": list(objects), "images": images, "ncs": to_dict(ncs),
             **{name: relative_to_repo(p) for name, p in paths.items()},

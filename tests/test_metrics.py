@@ -117,6 +117,16 @@ def test_shared_slot_pairs_name_the_colours_a_slot_merges():
     assert shared_slot_pairs(np.full((1, 1, 2), -1), np.zeros((1, 1), int), colours[:1, :2], names) == {}
 
 
+def test_shared_with_another_counts_cubes_in_one_slot_but_not_the_floor_or_the_absent():
+    from ncs_lite.metrics import shared_with_another
+
+    owner = np.array([[1, 1, 2, 0],            # two cubes in slot 1; one alone; one in the floor's slot 0
+                      [0, 0, -1, -1]])         # two cubes in the floor's slot; two without pixels
+    background = np.array([0, 0])
+    np.testing.assert_array_equal(shared_with_another(owner, background),
+                                  [[True, True, False, False], [False, False, False, False]])
+
+
 def test_ridge_probe_reads_a_linear_map_and_not_noise():
     rng = np.random.default_rng(0)
     x = rng.normal(size=(400, 6))
@@ -125,3 +135,31 @@ def test_ridge_probe_reads_a_linear_map_and_not_noise():
     assert ridge_probe(x[:200], rng.normal(size=(200, 2)), x[200:], rng.normal(size=(200, 2))) < 0.1
     with pytest.raises(ValueError, match="ridge_probe needs"):
         ridge_probe(x[:1], y[:1], x, y)
+
+
+def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colours():
+    from types import SimpleNamespace
+
+    from ncs_lite.metrics import _colour_ids
+    from ncs_lite.reproduce import segmentation_scores
+
+    data = load_buffer(cached_buffer(2, num_objects=3, seed=1000))    # what segmentation_scores reads
+    frames = data["frames"].reshape(-1, *data["frames"].shape[2:])
+    true = data["masks"].reshape(-1, *data["masks"].shape[2:]).astype(np.float32)
+    by_frame = {f.tobytes(): i for i, f in enumerate(frames)}
+
+    class MergesTheFirstTwo:               # true masks, but cubes 0 and 1 in one slot
+        cfg = SimpleNamespace(slots=SimpleNamespace(num_slots=4))
+
+        def infer(self, images, iterations, num_slots, restarts):
+            m = torch.as_tensor(true[[by_frame[np.asarray(x).tobytes()] for x in images]])
+            floor = 1 - m.sum(1, keepdim=True).clamp(max=1)
+            masks = torch.cat([m[:, :1] + m[:, 1:2], torch.zeros_like(m[:, :1]), m[:, 2:], floor], 1)
+            return SimpleNamespace(masks=masks)
+
+    seg = segmentation_scores(MergesTheFirstTwo(), 3, images=10)
+    assert seg["shared"] == pytest.approx(2 / 3) and seg["absorbed"] == 0
+    colours, names = _colour_ids(data["colors"])
+    pairs = ["+".join(sorted((names[colours[e, 0]], names[colours[e, 1]]))) for e in range(2)]
+    expected = {p: 5 * pairs.count(p) for p in set(pairs)}          # 5 frames per episode
+    assert seg["pairs"] == dict(sorted(expected.items(), key=lambda kv: (-kv[1], kv[0])))

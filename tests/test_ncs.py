@@ -176,9 +176,25 @@ def test_oracle_solves_tasks_and_random_does_not(oracle_graph, tmp_path):
     s_oracle, s_rand = summarize(oracle)[0], summarize(rand)[0]
     assert s_oracle["success"] == 1.0 and s_oracle["mean_steps"] == 5 and s_oracle["random_fraction"] == 0
     assert s_rand["success"] == 0.0 and s_rand["random_fraction"] == 1.0
+    # every oracle action moves a cube; a random pick mostly finds none
+    assert s_oracle["noop_fraction"] == 0 and 0.5 < s_rand["noop_fraction"] <= 1
     path = write_csv(oracle + rand, tmp_path / "r.csv")
     assert path.read_text().splitlines()[0].startswith("method,env,num_objects")
     assert len(path.read_text().splitlines()) == 21
+
+
+def test_an_action_that_moves_nothing_is_counted_as_a_noop():
+    class PicksTheFloor:                    # a pick at an outer corner, where no cube can be
+        def reset(self, obs, info):
+            pass
+
+        def act(self, obs, info):
+            return np.array([0.2, 0.2, 0.02, -0.1, 0.0, 0.0], np.float32), False
+
+    tasks = TaskSet(num_objects=2, episodes=2, seed=0)
+    rows = evaluate(lambda env: PicksTheFloor(), tasks, "floor")
+    assert all(r["noop_actions"] == r["steps"] > 0 and r["random_actions"] == 0 for r in rows)
+    assert summarize(rows)[0]["noop_fraction"] == 1.0
 
 
 def test_oracle_partial_goals(oracle_graph):
