@@ -40,8 +40,8 @@ def mean_sd(values) -> dict:
 def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
                         seed: int = 0, env: str = "block-rearrange") -> dict:
     """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
-    share a slot with another cube (`shared`; `pairs`: the colour pairs found sharing one, in
-    how many frames, most first), as notebook 03 measures them: `images` frames of the
+    share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
+    sharing one, most first), as notebook 03 measures them: `images` frames of the
     held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
     model's K), `restarts` starts per image."""
     from .data import cached_buffer, load_buffer
@@ -68,7 +68,7 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
     return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
             "absorbed": float(absorbed.mean()), "shared": float(shared[present].mean()),
-            "pairs": {k: v for k, v in pairs.items() if not k.endswith("+floor")},
+            "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
             "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
 
 
@@ -194,7 +194,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
                 row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
                 row[f"shared_{k}_r{restarts}"] = round(seg["shared"], 4)
-                row[f"pairs_{k}_r{restarts}"] = ", ".join(f"{p} {n}" for p, n in list(seg["pairs"].items())[:3])
+                row[f"pairs_{k}_r{restarts}"] = ", ".join(f"{p} {n}" for p, n in seg["pairs"][:3])
         for state in ("mask", "slot"):
             ncs = ncs_config(ncs_overrides, clusters=clusters, state=state)
             suffix = "" if state == "mask" else "_slot"
