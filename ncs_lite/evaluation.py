@@ -289,7 +289,7 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
     restart. Ground truth is read here to *measure* only. Cached like `evaluate_method`.
     """
     from .config import NCSConfig
-    from .metrics import shared_with_another, slot_assignment
+    from .metrics import in_floor_slot, shared_with_another, slot_assignment
 
     perception = learned_perception(model, tasks.num_objects, ncs)
 
@@ -301,7 +301,7 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
                 obs, info = env.reset(seed=task_seed(tasks.seed, i))
                 masks = np.stack([perception.current(obs).masks.numpy(), perception.goal(obs).masks.numpy()])
                 owner, background = slot_assignment(masks, np.stack([info["masks"], info["goal_masks"]]))
-                absorbed.append((owner >= 0) & (owner == background[:, None]))              # (2, k)
+                absorbed.append(in_floor_slot(owner, background))                            # (2, k)
                 shared.append(shared_with_another(owner, background))
         finally:
             env.close()

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 __all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
-           "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
+           "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -110,7 +110,12 @@ def absorbed_by_background(pred_masks, true_masks) -> np.ndarray:
     the same object: one cube merged with the floor costs only its own pixels' pairs, yet
     NCS can neither see nor move that cube (notebooks 03 and 06).
     """
-    owner, background = slot_assignment(pred_masks, true_masks)
+    return in_floor_slot(*slot_assignment(pred_masks, true_masks))
+
+
+def in_floor_slot(owner: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """`absorbed_by_background` from `slot_assignment`'s owner (B, k) and background (B,)."""
+    owner, background = np.asarray(owner), np.asarray(background)
     return (owner >= 0) & (owner == background[:, None])
 
 
@@ -122,7 +127,7 @@ def shared_with_another(owner: np.ndarray, background: np.ndarray) -> np.ndarray
     owner, background = np.asarray(owner), np.asarray(background)
     present = owner >= 0
     holders = ((owner[:, :, None] == owner[:, None, :]) & present[:, None, :]).sum(-1)
-    return present & (owner != background[:, None]) & (holders > 1)
+    return present & ~in_floor_slot(owner, background) & (holders > 1)
 
 
 def lost_in_reconstruction(reconstructions, images, true_masks) -> np.ndarray:
@@ -286,8 +291,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     colour, names = _colour_ids(buffer["colors"])                      # (E, k)
     e_idx, t_idx, o_idx = np.nonzero(owner >= 0)
     slot_of = owner[e_idx, t_idx, o_idx]
-    holders = (owner[e_idx, t_idx] == slot_of[:, None]).sum(1)        # objects in that slot
-    own = (slot_of != background[e_idx, t_idx]) & (holders == 1)
+    flat, floor = owner.reshape(E * T, k), background.reshape(E * T)
+    own = (~in_floor_slot(flat, floor) & ~shared_with_another(flat, floor)).reshape(E, T, k)[e_idx, t_idx, o_idx]
     return {"slots": slots, "masks": masks, "owner": owner, "z": z, "s": s,
             "episode": e_idx, "frame": t_idx, "object": o_idx, "own_slot": own, "background": background,
             "types": z[e_idx, t_idx, slot_of], "states": s[e_idx, t_idx, slot_of],

@@ -45,7 +45,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
     model's K), `restarts` starts per image."""
     from .data import cached_buffer, load_buffer
-    from .metrics import _colour_ids, foreground_ari, shared_slot_pairs, shared_with_another, slot_assignment
+    from .metrics import (_colour_ids, foreground_ari, in_floor_slot, shared_slot_pairs, shared_with_another,
+                          slot_assignment)
 
     data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
                                      seed=seed + HELDOUT_SEED))
@@ -62,12 +63,10 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
         owners.append(owner)
         backgrounds.append(background)
     owner, background = np.concatenate(owners), np.concatenate(backgrounds)
-    present = owner >= 0
-    absorbed = present & (owner == background[:, None])
     shared = shared_with_another(owner, background)
     pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
     return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
-            "absorbed": float(absorbed.mean()), "shared": float(shared[present].mean()),
+            "absorbed": float(in_floor_slot(owner, background).mean()), "shared": float(shared[owner >= 0].mean()),
             "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
             "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
 

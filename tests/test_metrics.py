@@ -161,5 +161,6 @@ def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colour
     assert seg["shared"] == pytest.approx(2 / 3) and seg["absorbed"] == 0
     colours, names = _colour_ids(data["colors"])
     pairs = ["+".join(sorted((names[colours[e, 0]], names[colours[e, 1]]))) for e in range(2)]
-    expected = {p: 5 * pairs.count(p) for p in set(pairs)}          # 5 frames per episode
+    frames_per_episode = data["frames"].shape[1]
+    expected = {p: frames_per_episode * pairs.count(p) for p in set(pairs)}
     assert seg["pairs"] == [list(kv) for kv in sorted(expected.items(), key=lambda kv: (-kv[1], kv[0]))]
