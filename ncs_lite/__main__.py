@@ -34,7 +34,7 @@ def _graph(args):
     from .data import manifest_hash
     from .inference import load_dslate
     from .ncs.graph import build_graph
-    from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions
+    from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
     from .utils import check_out_file, provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
@@ -50,7 +50,7 @@ def _graph(args):
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state))
+                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
     graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
                         seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info
@@ -58,7 +58,7 @@ def _graph(args):
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
                       oracle=args.oracle, perception_state=perception.state, ncs=to_dict(cfg),
-                      overrides=list(args.overrides), **made)
+                      overrides=list(args.overrides), **slot_read(perception), **made)
     graph.save(args.out)
     print(json.dumps({"out": args.out, "state": graph.state, "nodes": graph.num_nodes,
                       "edges": graph.num_edges, "coverage": graph.info.get("coverage")}))

@@ -381,6 +381,10 @@ class NCSConfig:
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
+    slot_position: str | None = None  # with slot states, where a slot is: "attention" (the model's
+    #                             s) or "assigned" (the cells it wins, one slot per object plus
+    #                             the floor's); None = the model's env's (ncs.perception.
+    #                             SLOT_POSITION_BY_ENV: "assigned" block-rearrange)
     align: str = "near"         # which pairs of align's matching are constraints (ncs.policy.match):
     #                             "near" = those whose types are closer than a quarter of the
     #                             scene's median type distance (the kit's; a partial goal's
@@ -404,7 +408,12 @@ class NCSConfig:
         if self.state not in states:
             raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
         from .ncs.graph import EDGE_ACTIONS
+        from .ncs.perception import SLOT_POSITIONS
         from .ncs.policy import ALIGN_RULES
+
+        if self.slot_position is not None and self.slot_position not in SLOT_POSITIONS:
+            raise ValueError(f"ncs.slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))} "
+                             f"or None (the env's), got {self.slot_position!r}")
 
         if self.align not in ALIGN_RULES:
             raise ValueError(f"ncs.align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {self.align!r}")

@@ -142,14 +142,19 @@ def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
     objects with: one slot per object plus `ncs.extra_slots` (the background's), at least
     the model's K, and the restarts (`acting_restarts`), iterations and kind of state of `ncs`
-    (an `NCSConfig`, default the paper's reading)."""
+    (an `NCSConfig`, default the paper's reading). Slot states read from the cells each slot
+    wins (`ncs.slot_position` "assigned") get no more slots than that: a spare slot would win
+    a few cells of a cube (`SLOT_POSITION_BY_ENV`)."""
     from .config import NCSConfig
-    from .ncs.perception import DSlatePerception, acting_restarts
+    from .ncs.perception import DSlatePerception, acting_restarts, default_slot_position
 
     ncs = ncs or NCSConfig()
-    slots = max(model.cfg.slots.num_slots, num_objects + ncs.extra_slots)
+    position = ncs.slot_position or default_slot_position(model)
+    slots = num_objects + ncs.extra_slots
+    if not (ncs.state == "slot" and position == "assigned"):
+        slots = max(model.cfg.slots.num_slots, slots)
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots,
-                            restarts=acting_restarts(ncs, model), state=ncs.state)
+                            restarts=acting_restarts(ncs, model), state=ncs.state, slot_position=position)
 
 
 def state_features(method: str, state: str, model=None) -> int | None:
@@ -189,13 +194,14 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     background's) when the scene holds more objects than the model's K
     (`learned_perception`). `ncs.state` is the kind of state the graph agents read (the
     oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on. MPC
-    always reads slot states (it rolls whole slots through the dynamics)."""
+    always reads slot states as the model's s (`slot_position` "attention": it rolls whole
+    slots through the dynamics, which learned on them)."""
     from dataclasses import replace
 
     from .baselines import BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent, SetGraph
     from .config import NCSConfig
     from .ncs.graph import TransitionGraph
-    from .ncs.perception import ORACLE_STATES, OraclePerception
+    from .ncs.perception import ORACLE_STATES, OraclePerception, default_slot_position
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
@@ -215,7 +221,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         return lambda env: agent(policy)
     if method == "mpc":
         return lambda env: MPCAgent(model, learned_perception(model, env.config.num_objects,
-                                                              replace(ncs, state="slot")),
+                                                              replace(ncs, state="slot", slot_position="attention")),
                                     env.action_space, mpc, seed, align=ncs.align)
     agent, kind, command = ((NCSAgent, TransitionGraph, "graph") if method.startswith("ncs") else
                             (NFAgent, SetGraph, "graph-nf"))
@@ -223,6 +229,12 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
+    built = graph.info.get("slot_position")
+    if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
+        acting = ncs.slot_position or default_slot_position(model)
+        if acting != built:
+            raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "
+                             f"the agent would act with {acting!r} (set ncs.slot_position={built})")
     extra = {"align": ncs.align, "nearest_variance": ncs.nearest_variance} if agent is NCSAgent else {}
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed, **extra)

@@ -140,7 +140,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .inference import load_dslate
     from .metrics import factorization_scores
     from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import DSlatePerception, acting_restarts, buffer_transitions
+    from .ncs.perception import DSlatePerception, acting_restarts, buffer_transitions, slot_read
     from .training import read_checkpoint, train
 
     from .comparison import GRAPH_EPISODES
@@ -205,12 +205,12 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 print(f"seed {seed}: graph on {state} states", flush=True)
                 # the same cached buffer pass and build as `python -m ncs_lite graph`
                 perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.graph_restarts,
-                                              state=state)
+                                              state=state, slot_position=ncs.slot_position)
                 states_t, states_t1, actions, moved = buffer_transitions(
                     perception, cached_buffer(graph_episodes, env=env, seed=0))
                 graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=state,
                                     seed=ncs.seed, true_entity=moved)
-                graph.info.update(key=graph_key, state=state)
+                graph.info.update(key=graph_key, state=state, **slot_read(perception))
                 graph.save(graph_path)
             row[f"graph_edges{suffix}"] = graph.num_edges
             row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)

@@ -467,7 +467,7 @@ def test_state_reaches_perception_and_cache_keys(position_graph, oracle_graph, m
     from ncs_lite.evaluation import evaluate_method, learned_perception
     from ncs_lite.ncs.perception import RESTARTS, RESTARTS_BY_ENV
 
-    model = SimpleNamespace(cfg=SimpleNamespace(slots=SimpleNamespace(num_slots=3)))
+    model = SimpleNamespace(cfg=SimpleNamespace(slots=SimpleNamespace(num_slots=3, position_state=False)))
     assert learned_perception(model, 4, NCSConfig(state="slot")).state == "slot"
     assert learned_perception(model, 4).state == "mask"
     # restarts: the config's, else those of the env the model was trained on
@@ -567,3 +567,61 @@ def test_learned_slot_states_end_to_end(tmp_path):
     assert agent.last["src_nodes"].shape == agent.last["raw_distances"].shape == (3,)   # 3 slots each
     with pytest.raises(ValueError, match="built on 'slot' states but the agent would read 'mask'"):
         agent_factory("ncs", graph=graph, model=model)
+
+
+def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
+    """`slot_position` "assigned": a slot's centroid and spread over the cells where its
+    attention is the largest, with the model's prior; a slot that wins none reads the prior
+    alone. Block-rearrange models read this way, with one slot per object plus the floor's."""
+    from ncs_lite.config import NCSConfig, apply_overrides, get_preset, ncs_config
+    from ncs_lite.evaluation import learned_perception
+    from ncs_lite.models import DSlate
+    from ncs_lite.ncs.perception import DSlatePerception
+
+    torch.manual_seed(0)
+    model = DSlate(get_preset("ci")).eval()
+    coords, prior = model.grid_coords.float(), model.cfg.slots.position_prior
+    attn = torch.rand(2, 3, coords.shape[0])
+    attn[:, 2] = 0.0                                                   # slot 2 wins no cell
+    attn = attn / attn.sum(1, keepdim=True)
+    states = torch.randn(2, 3, model.cfg.slots.state_dim)
+    got = model.assigned_states(states, attn)
+    for b in range(2):
+        for k in range(3):
+            won = coords[attn[b].argmax(0) == k]                       # (n, 2)
+            mass = len(won) + prior
+            centre = won.sum(0) / mass
+            spread = ((won.pow(2).sum(0) + prior / 3) / mass - centre.pow(2)).sqrt()
+            torch.testing.assert_close(got[b, k, -4:], torch.cat([centre, spread]))
+    torch.testing.assert_close(got[:, 2, -4:], torch.tensor([0.0, 0.0, 3 ** -0.5, 3 ** -0.5]).expand(2, 4))
+    torch.testing.assert_close(got[..., :-4], states[..., :-4])         # the rest of s is kept
+    # the perception reads it for graphs and agents alike; the model's own s by default
+    collect(tmp_path / "buf", episodes=2, seed=0)
+    buf = load_buffer(tmp_path / "buf")
+    read = DSlatePerception(model, iterations=2, state="slot", restarts=1, slot_position="assigned")
+    st, st1, _, _ = read.transitions(buf)
+    r = model.infer_video(buf["frames"], iterations=2)
+    torch.testing.assert_close(st1, model.assigned_states(r.states, r.attention)[:, 1:].flatten(0, 1).float())
+    assert DSlatePerception(model, state="slot").slot_position == "attention"     # a model that names no env
+    assert read.describe()["slot_position"] == "assigned"
+    # block-rearrange's default: assigned, and no spare slot (ci's K is 3: 1 object + 1 < 3)
+    model.checkpoint_info = {"env": "block-rearrange"}
+    slot = learned_perception(model, 1, NCSConfig(state="slot"))
+    assert (slot.slot_position, slot.num_slots) == ("assigned", 2)
+    assert learned_perception(model, 1, NCSConfig(state="slot", slot_position="attention")).num_slots == 3
+    assert learned_perception(model, 1).num_slots == 3                             # masks: at least K
+    # an agent reading slot states another way than its graph was built with is refused
+    st, st1, actions, _ = read.transitions(buf)
+    graph = build_graph(st, st1, actions, clusters=4, state="slot")
+    graph.info["slot_position"] = "assigned"
+    agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot"))
+    with pytest.raises(ValueError, match="slot_position 'assigned'; the agent would act with 'attention'"):
+        agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot", slot_position="attention"))
+    with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned' or None "
+                                         r"\(the env's\), got 'hard'"):
+        ncs_config(["ncs.slot_position=hard"])
+    plain = DSlate(apply_overrides(get_preset("ci"), ["slots.position_state=false"]))   # no position features
+    plain.checkpoint_info = {"env": "block-rearrange"}
+    assert DSlatePerception(plain, state="slot").slot_position == "attention"
+    with pytest.raises(ValueError, match="this model has none"):
+        DSlatePerception(plain, state="slot", slot_position="assigned")

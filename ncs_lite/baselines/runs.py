@@ -151,7 +151,7 @@ def _graph_nf(args) -> None:
     from ..data import manifest_hash
     from ..inference import load_dslate
     from ..ncs.graph import TransitionGraph
-    from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions
+    from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
     from ..utils import check_out_file, provenance, relative_to_repo
     from .nf import set_graph_from_transitions
 
@@ -167,7 +167,7 @@ def _graph_nf(args) -> None:
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
                   DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state))
+                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
         graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)
@@ -178,7 +178,8 @@ def _graph_nf(args) -> None:
     graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       bind_graph=relative_to_repo(args.bind_graph) if args.bind_graph else None,
-                      oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides), **made)
+                      oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides),
+                      **slot_read(perception), **made)
     graph.save(args.out)
     print(json.dumps({"out": args.out, "state": graph.state, "scene_nodes": graph.num_nodes,
                       "edges": graph.num_edges, "entity_nodes": int(graph.centroids.shape[0])}))

@@ -223,6 +223,18 @@ class DSlate(nn.Module):
         where = torch.cat([centre, spread], -1).to(slots.dtype)
         return torch.cat([slots[..., :slots.shape[-1] - POSITION_FEATURES], where], -1)
 
+    def assigned_states(self, states: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+        """states (..., K, Ds) with their position features read from the cells each slot wins
+        (its attention is the largest of the K there) instead of from its soft attention
+        (..., K, N'), with the same prior. With soft attention a cube's centroid leans toward
+        the other cubes its slot attends to a little, more so the more cubes a scene holds;
+        NCS can read slot states this way (`ncs.slot_position`, ncs/perception.py)."""
+        if not self.cfg.slots.position_state:
+            raise ValueError("assigned_states reads the position features of slots.position_state, "
+                             "which this model does not have")
+        won = F.one_hot(attention.argmax(-2), attention.shape[-2]).movedim(-1, -2).to(attention.dtype)
+        return self._with_position(states, won)
+
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,
                 dvae_only: bool = False, foreground_weight: float | None = None,

@@ -33,6 +33,17 @@ STATE_GRID = 16
 # NCS at 4 objects 0.63 -> 0.57): README, "How many restarts".
 RESTARTS = 8
 RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8}
+# where a slot state's position features come from (NCSConfig.slot_position): "attention",
+# the model's own s (its soft attention's centroid and spread), or "assigned", the cells the
+# slot wins (`DSlate.assigned_states`), read with one slot per object plus the floor's (a
+# spare slot wins a few cells of a cube, a state of its own in the goal image and in the
+# scene: a pair that never looks satisfied). On block-rearrange the soft centroid of a cube
+# leans toward the other cubes, more so at 7 objects, and binds to another cell's node; the
+# README ("Where a slot is") gives NCS with both reads over the training seeds.
+# robogym-rearrange keeps "attention": the assigned read is not measured there.
+SLOT_POSITION = "attention"
+SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
+SLOT_POSITIONS = ("attention", "assigned")
 
 
 def acting_restarts(ncs, model) -> int:
@@ -40,8 +51,20 @@ def acting_restarts(ncs, model) -> int:
     the env the model was trained on (RESTARTS_BY_ENV; RESTARTS for a model that names none)."""
     if ncs.restarts is not None:
         return ncs.restarts
-    env = (getattr(model, "checkpoint_info", None) or {}).get("env")
-    return RESTARTS_BY_ENV.get(env, RESTARTS)
+    return RESTARTS_BY_ENV.get(model_env(model), RESTARTS)
+
+
+def model_env(model) -> str | None:
+    """The env a loaded model was trained on (None for a model that names none)."""
+    return (getattr(model, "checkpoint_info", None) or {}).get("env")
+
+
+def default_slot_position(model) -> str:
+    """The slot-state read of the env the model was trained on (SLOT_POSITION_BY_ENV), when
+    the model has position features to read ("attention" otherwise)."""
+    if not model.cfg.slots.position_state:
+        return "attention"
+    return SLOT_POSITION_BY_ENV.get(model_env(model), SLOT_POSITION)
 
 
 class Entities(NamedTuple):
@@ -133,7 +156,8 @@ class DSlatePerception:
 
     type = z (the action-invariant half of the slot); state = the slot-attention mask pooled
     to the 16x16 state grid like the oracle's (block-rearrange, Table 3) or the state half s
-    of the slot ("slot").
+    of the slot ("slot"), its position features read as `slot_position` says (SLOT_POSITIONS;
+    None: `default_slot_position`).
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background. `restarts`
     initial slot samples per image, the best reconstructed kept (`DSlate.infer`); the
@@ -144,11 +168,19 @@ class DSlatePerception:
     reads_ground_truth = False
 
     def __init__(self, model, iterations: int = 7, num_slots: int | None = None,
-                 state: str = "mask", batch_size: int = 64, restarts: int = RESTARTS):
+                 state: str = "mask", batch_size: int = 64, restarts: int = RESTARTS,
+                 slot_position: str | None = None):
         if state not in ("mask", "slot"):
             raise ValueError(f"state must be 'mask' or 'slot', got {state!r}")
+        slot_position = slot_position or default_slot_position(model)
+        if slot_position not in SLOT_POSITIONS:
+            raise ValueError(f"slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))}, "
+                             f"got {slot_position!r}")
+        if slot_position == "assigned" and not model.cfg.slots.position_state:
+            raise ValueError("slot_position 'assigned' reads slots.position_state's features; "
+                             "this model has none (use 'attention')")
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
-        self.restarts = restarts
+        self.restarts, self.slot_position = restarts, slot_position
         self.state, self.batch_size = state, batch_size
 
     @property
@@ -160,7 +192,7 @@ class DSlatePerception:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots,
                              restarts=self.restarts)
         masks = r.masks[0].cpu().float()                               # (K, H, W), the kept restart
-        states = pool_masks(masks) if self.state == "mask" else r.states[0].cpu().float()
+        states = pool_masks(masks) if self.state == "mask" else _slot_states(self.model, r, self.slot_position)[0]
         return Entities(r.types[0].cpu().float(), states, masks)
 
     def current(self, obs, info=None) -> Entities:
@@ -184,7 +216,8 @@ class DSlatePerception:
         batches = [(frames[i:i + self.batch_size],) for i in range(0, len(frames), self.batch_size)]
         # each batch is seeded alone: worker processes give the loop's result
         done = map_jobs(_infer_videos, batches, desc="slot inference",
-                        shared=(self.model, self.iterations, self.num_slots, self.restarts, self.state))
+                        shared=(self.model, self.iterations, self.num_slots, self.restarts, self.state,
+                                self.slot_position))
         masks = torch.cat([m for m, _ in done])                          # (E, T, K, N)
         states = torch.cat([s for _, s in done])                         # (E, T, K, D)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
@@ -201,15 +234,30 @@ class DSlatePerception:
 
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
+                "slot_position": self.slot_position,
                 "batch_size": self.batch_size, "grid": STATE_GRID}
+
+
+def slot_read(perception) -> dict:
+    """What a graph built from `perception` records of how it read slot states, so an agent
+    that reads them another way is refused (`agent_factory`): {} unless learned slot states."""
+    if getattr(perception, "reads_ground_truth", True) or perception.state != "slot":
+        return {}
+    return {"slot_position": perception.slot_position}
 
 
 def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
     """Pooled masks and states of a batch of videos (a job of `DSlatePerception.transitions`)."""
-    model, iterations, num_slots, restarts, state = spec
+    model, iterations, num_slots, restarts, state, slot_position = spec
     r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts)
     pooled = pool_masks(r.masks).cpu().float()
-    return pooled, (pooled if state == "mask" else r.states.cpu().float())
+    return pooled, (pooled if state == "mask" else _slot_states(model, r, slot_position))
+
+
+def _slot_states(model, r, slot_position: str) -> torch.Tensor:
+    """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says."""
+    states = r.states if slot_position == "attention" else model.assigned_states(r.states, r.attention)
+    return states.cpu().float()
 
 
 # code the transitions of a buffer depend on (besides the buffer and the perception's settings)
