@@ -59,7 +59,7 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     from .evaluation import learned_perception
     from .inference import load_dslate, obtain_dslate, shipped_asset
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-    from .ncs.perception import ORACLE_STATES, OraclePerception, buffer_transitions
+    from .ncs.perception import ORACLE_STATES, OraclePerception, buffer_transitions, slot_read
 
     if env not in STATE_BY_ENV:
         raise ValueError(f"env must be one of {sorted(STATE_BY_ENV)}, got {env!r}")
@@ -89,6 +89,7 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
         st, st1, acts, true = buffer_transitions(perception, data)
         graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
                             edge_action=ncs.edge_action)
+        graph.info.update(slot_read(perception))
         out[f"{name}graph"] = graph
         out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph, state=state)
     for method in ("bc", "iql"):

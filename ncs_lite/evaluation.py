@@ -201,7 +201,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     from .baselines import BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent, SetGraph
     from .config import NCSConfig
     from .ncs.graph import TransitionGraph
-    from .ncs.perception import ORACLE_STATES, OraclePerception, default_slot_position
+    from .ncs.perception import ORACLE_STATES, OraclePerception, built_slot_position, default_slot_position
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
@@ -229,8 +229,8 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
-    built = graph.info.get("slot_position")
-    if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
+    built = built_slot_position(graph.info)
+    if ncs.state == "slot" and built and not method.endswith("oracle"):
         acting = ncs.slot_position or default_slot_position(model)
         if acting != built:
             raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "

@@ -617,6 +617,12 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot"))
     with pytest.raises(ValueError, match="slot_position 'assigned'; the agent would act with 'attention'"):
         agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot", slot_position="attention"))
+    del graph.info["slot_position"]                              # as `graph` wrote it before reads were recorded
+    graph.info.update(perception_state="slot", oracle=False)
+    with pytest.raises(ValueError, match="slot_position 'attention'; the agent would act with 'assigned'"):
+        agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot"))
+    assert graph_from_buffer(buf, read, clusters=4).info["slot_position"] == "assigned"
+    assert "slot_position" not in graph_from_buffer(buf, OraclePerception("position"), clusters=4).info
     with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned' or None "
                                          r"\(the env's\), got 'hard'"):
         ncs_config(["ncs.slot_position=hard"])

@@ -364,9 +364,13 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
         state = own or "mask"
     elif own is not None and state != own:
         raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
+    from .perception import slot_read
+
     states_t, states_t1, actions, true_entity = perception.transitions(buffer)
-    return build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
-                       true_entity=true_entity, edge_action=edge_action)
+    graph = build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
+                        true_entity=true_entity, edge_action=edge_action)
+    graph.info.update(slot_read(perception))
+    return graph
 
 
 __all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",

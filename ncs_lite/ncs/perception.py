@@ -246,6 +246,16 @@ def slot_read(perception) -> dict:
     return {"slot_position": perception.slot_position}
 
 
+def built_slot_position(info: dict) -> str | None:
+    """How the graph whose `info` this is read slot states (`slot_read`): a graph the `graph`
+    command wrote before reads were recorded read the model's s ("attention"); None when the
+    graph does not say (ground truth, mask states, or built outside the commands)."""
+    if "slot_position" in info:
+        return info["slot_position"]
+    learned_slots = info.get("perception_state") == "slot" and not info.get("oracle")
+    return "attention" if learned_slots else None
+
+
 def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
     """Pooled masks and states of a batch of videos (a job of `DSlatePerception.transitions`)."""
     model, iterations, num_slots, restarts, state, slot_position = spec
