@@ -68,7 +68,7 @@ def _evaluate(args):
     from .baselines import MPC_PRESETS, SetGraph
     from .baselines.runs import load_trained_policy
     from .config import ncs_config, parse_override, section_config, split_overrides
-    from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, evaluate, state_features,
+    from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, check_graph_reading, evaluate,
                              summarize, write_csv)
     from .inference import load_dslate, shipped_asset
     from .ncs.graph import TransitionGraph
@@ -116,7 +116,7 @@ def _evaluate(args):
     if graph is not None:       # the kind and size of state its nodes are, and its actions fit the env
         env = tasks.make_env()
         try:
-            graph.check_state(cfg.state, state_features(args.method, cfg.state, model))
+            check_graph_reading(graph, args.method, cfg, model)
             check_graph_actions(graph, env.action_space)
         except ValueError as exc:
             raise ValueError(f"--graph {paths['graph']}: {exc}") from None

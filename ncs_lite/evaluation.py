@@ -170,6 +170,22 @@ def state_features(method: str, state: str, model=None) -> int | None:
     return getattr(model, "state_dim", None)      # None: no model, or a stand-in that does not say
 
 
+def check_graph_reading(graph, method: str, ncs, model=None) -> None:
+    """ValueError unless the agent `method` with `ncs` reads states as `graph` was built on:
+    the same kind and size of state (`TransitionGraph.check_state`) and, for a model's slot
+    states, the same `slot_position` (`built_slot_position`; a graph that does not say is
+    not checked)."""
+    from .ncs.perception import built_slot_position, default_slot_position
+
+    graph.check_state(ncs.state, state_features(method, ncs.state, model))
+    built = built_slot_position(graph.info)
+    if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
+        acting = ncs.slot_position or default_slot_position(model)
+        if acting != built:
+            raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "
+                             f"the agent would act with {acting!r} (set ncs.slot_position={built})")
+
+
 def check_graph_actions(graph, action_space) -> None:
     """ValueError unless every edge action of `graph` (NCS's or NF's) lies in `action_space`:
     a graph of another env, or a spoilt file without a digest, would be refused mid-episode."""
@@ -201,7 +217,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     from .baselines import BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent, SetGraph
     from .config import NCSConfig
     from .ncs.graph import TransitionGraph
-    from .ncs.perception import ORACLE_STATES, OraclePerception, built_slot_position, default_slot_position
+    from .ncs.perception import ORACLE_STATES, OraclePerception
     from .ncs.policy import NCSAgent
 
     if method not in METHODS:
@@ -228,13 +244,7 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     if not isinstance(graph, kind):
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
-    graph.check_state(ncs.state, state_features(method, ncs.state, model))
-    built = built_slot_position(graph.info)
-    if ncs.state == "slot" and built and not method.endswith("oracle"):
-        acting = ncs.slot_position or default_slot_position(model)
-        if acting != built:
-            raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "
-                             f"the agent would act with {acting!r} (set ncs.slot_position={built})")
+    check_graph_reading(graph, method, ncs, model)
     extra = {"align": ncs.align, "nearest_variance": ncs.nearest_variance} if agent is NCSAgent else {}
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed, **extra)

@@ -610,6 +610,12 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     assert (slot.slot_position, slot.num_slots) == ("assigned", 2)
     assert learned_perception(model, 1, NCSConfig(state="slot", slot_position="attention")).num_slots == 3
     assert learned_perception(model, 1).num_slots == 3                             # masks: at least K
+    env = TaskSet(num_objects=1, episodes=1).make_env()
+    try:   # MPC rolls the model's own s through the dynamics, which learned on it
+        mpc = agent_factory("mpc", model=model, ncs=NCSConfig(state="slot"))(env).perception
+    finally:
+        env.close()
+    assert (mpc.slot_position, mpc.num_slots) == ("attention", 3)
     # an agent reading slot states another way than its graph was built with is refused
     st, st1, actions, _ = read.transitions(buf)
     graph = build_graph(st, st1, actions, clusters=4, state="slot")

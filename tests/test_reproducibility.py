@@ -245,6 +245,9 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
     commands = [  # arguments, what the one line says: each was a traceback, a silent default or a hang
         (["evaluate", "--method", "ncs-oracle", "--graph", slot_graph, "--episodes", "1"],
          f"--graph {slot_graph}: the graph's nodes are 'slot' states of 4 numbers but the perception reads states of 3"),
+        (["evaluate", "--method", "ncs", "--graph", slot_graph, "--set", "ncs.slot_position=attention", "--episodes", "1"],
+         f"--graph {slot_graph}: the graph was built on slot states read with slot_position 'assigned'; "
+         "the agent would act with 'attention'"),
         (["evaluate", "--method", "ncs-oracle", "--graph", str(ROBOGYM_POSITION_GRAPH), "--episodes", "1"],
          "edge actions lie outside the env's action space"),        # how many depends on the shipped graph
         (["graph-nf", "--oracle", "--bind-graph", slot_graph, "--data", buf, "--out", str(tmp_path / "nf.pt")],
