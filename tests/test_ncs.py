@@ -604,6 +604,8 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     torch.testing.assert_close(st1, model.assigned_states(r.states, r.attention)[:, 1:].flatten(0, 1).float())
     assert DSlatePerception(model, state="slot").slot_position == "attention"     # a model that names no env
     assert read.describe()["slot_position"] == "assigned"
+    masks = [DSlatePerception(model, slot_position=p).describe() for p in ("assigned", "attention")]
+    assert masks[0] == masks[1]                         # a mask pass reads no position: one cache entry
     # block-rearrange's default: assigned, and no spare slot (ci's K is 3: 1 object + 1 < 3)
     model.checkpoint_info = {"env": "block-rearrange"}
     slot = learned_perception(model, 1, NCSConfig(state="slot"))

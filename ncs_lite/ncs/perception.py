@@ -234,7 +234,7 @@ class DSlatePerception:
 
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
-                "slot_position": self.slot_position,
+                "slot_position": self.slot_position if self.state == "slot" else None,   # masks: unread
                 "batch_size": self.batch_size, "grid": STATE_GRID}
 
 
