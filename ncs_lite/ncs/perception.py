@@ -176,7 +176,7 @@ class DSlatePerception:
         if slot_position not in SLOT_POSITIONS:
             raise ValueError(f"slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))}, "
                              f"got {slot_position!r}")
-        if slot_position == "assigned" and not model.cfg.slots.position_state:
+        if slot_position == "assigned" and state == "slot" and not model.cfg.slots.position_state:
             raise ValueError("slot_position 'assigned' reads slots.position_state's features; "
                              "this model has none (use 'attention')")
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
@@ -240,7 +240,8 @@ class DSlatePerception:
 
 def slot_read(perception) -> dict:
     """What a graph built from `perception` records of how it read slot states, so an agent
-    that reads them another way is refused (`agent_factory`): {} unless learned slot states."""
+    that reads them another way is refused (`evaluation.check_graph_reading`): {} unless
+    learned slot states."""
     if getattr(perception, "reads_ground_truth", True) or perception.state != "slot":
         return {}
     return {"slot_position": perception.slot_position}
