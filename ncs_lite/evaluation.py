@@ -146,10 +146,10 @@ def learned_perception(model, num_objects: int, ncs=None):
     wins (`ncs.slot_position` "assigned") get no more slots than that: a spare slot would win
     a few cells of a cube (`SLOT_POSITION_BY_ENV`)."""
     from .config import NCSConfig
-    from .ncs.perception import DSlatePerception, acting_restarts, default_slot_position
+    from .ncs.perception import DSlatePerception, acting_restarts, acting_slot_position
 
     ncs = ncs or NCSConfig()
-    position = ncs.slot_position or default_slot_position(model)
+    position = acting_slot_position(ncs, model)
     slots = num_objects + ncs.extra_slots
     if not (ncs.state == "slot" and position == "assigned"):
         slots = max(model.cfg.slots.num_slots, slots)
@@ -175,12 +175,12 @@ def check_graph_reading(graph, method: str, ncs, model=None) -> None:
     the same kind and size of state (`TransitionGraph.check_state`) and, for a model's slot
     states, the same `slot_position` (`built_slot_position`; a graph that does not say is
     not checked)."""
-    from .ncs.perception import built_slot_position, default_slot_position
+    from .ncs.perception import acting_slot_position, built_slot_position
 
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
     built = built_slot_position(graph.info)
     if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
-        acting = ncs.slot_position or default_slot_position(model)
+        acting = acting_slot_position(ncs, model)
         if acting != built:
             raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "
                              f"the agent would act with {acting!r} (set ncs.slot_position={built})")

@@ -54,6 +54,12 @@ def acting_restarts(ncs, model) -> int:
     return RESTARTS_BY_ENV.get(model_env(model), RESTARTS)
 
 
+def acting_slot_position(ncs, model) -> str:
+    """How an agent reads slot states' positions: `ncs.slot_position`, or when it is None the
+    default of the env the model was trained on (`default_slot_position`)."""
+    return ncs.slot_position or default_slot_position(model)
+
+
 def model_env(model) -> str | None:
     """The env a loaded model was trained on (None for a model that names none)."""
     return (getattr(model, "checkpoint_info", None) or {}).get("env")
