@@ -6,12 +6,12 @@ the RGB image, depth and segmentation in one call; MuJoCo draws the segmentation
 its own, so for robogym-rearrange it is a bare `mujoco.Renderer` loop of the RGB image and
 then the segmentation from the env's camera (the masks of `info`, as the block env's come
 from its one call). A block-rearrange step is that render plus bookkeeping; a
-robogym-rearrange step is the two passes plus the settle's physics.
+robogym-rearrange step is the two passes plus the kinematics of the placed pose.
 `ratio_to_render` says how close to that floor an env runs. For robogym-rearrange,
 `ratio_to_one_rgb_pass` is the step rate against one bare RGB pass (a reference that leaves
 out the segmentation pass every step must draw; the bench's reference before),
 `ms_per_call` times the parts of a step on the scene the steps left (both passes, the
-settle, the random action's free-spot search), and `ratio_to_both_passes` is the step rate
+kinematics, the random action's free-spot search), and `ratio_to_both_passes` is the step rate
 against the env's own two passes.
 """
 from __future__ import annotations
@@ -80,7 +80,7 @@ def run(seconds: float = 2.0) -> dict:
         segmenter.update_scene(robogym.data, "top", scene_option=shown)
         segmenter.render()
 
-    parts = {"rgb_and_segmentation": lambda env, rng: env._render(), "settle": lambda env, rng: env._settle(),
+    parts = {"rgb_and_segmentation": lambda env, rng: env._render(), "kinematics": lambda env, rng: env._update_kinematics(),
              "random_action": lambda env, rng: env.random_pick_and_move(rng)}
     rg = _measure(robogym, bare_rgb_and_segmentation,
                   {"ratio_to_render": ">= 0.5", "transitions_per_s": ">= 150"}, seconds, parts)
