@@ -18,9 +18,13 @@ import numpy as np
 from .envs import make
 from .utils import atomic_write_text, progress
 
+# what a step did (`step_outcome`), counted per episode
+STEP_OUTCOMES = ("placed", "picked_nothing", "refused", "moved_done", "off_goal")
 COLUMNS = ("method", "env", "num_objects", "goal", "num_constrained", "horizon_multiplier",
            "action_noise", "seed", "episode", "task_seed", "success", "steps", "min_steps",
-           "horizon", "random_actions", "noop_actions")
+           "horizon", "random_actions", "noop_actions", *STEP_OUTCOMES)
+PER_EPISODE = ("episode", "task_seed", "success", "steps", "min_steps", "horizon", "random_actions",
+               "noop_actions", *STEP_OUTCOMES)
 
 
 @dataclass(frozen=True)
@@ -68,19 +72,44 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     return (0.0 if successes == 0 else centre - half), (1.0 if successes == n else centre + half)
 
 
-def run_episode(agent, env, seed: int) -> dict:
+def step_outcome(before: dict, after: dict) -> str:
+    """What one step did, from the env's `info` before and after it (STEP_OUTCOMES):
+    "picked_nothing" (no object within the pick threshold), "refused" (an object was picked
+    but its place was refused: occupied, overlapping or off the table), "moved_done" (it moved
+    an object already at its goal), "placed" (it put a constrained object at its goal),
+    "off_goal" (it moved an object elsewhere)."""
+    moved = after["moved"]
+    if moved < 0:
+        return "picked_nothing" if after["picked"] < 0 else "refused"
+    if before["constrained"][moved] and before["satisfied"][moved]:
+        return "moved_done"
+    if after["constrained"][moved] and after["satisfied"][moved]:
+        return "placed"
+    return "off_goal"
+
+
+def run_episode(agent, env, seed: int, on_step=None) -> dict:
+    """One task: the episode's row (success, steps, random fallbacks, no-ops and the count of
+    each step outcome). `on_step(agent, before, action, after, outcome)`, if given, sees every
+    step (`step_trace`)."""
     obs, info = env.reset(seed=seed)
     agent.reset(obs, info)
-    steps = randoms = noops = 0
+    steps = randoms = 0
+    outcomes = dict.fromkeys(STEP_OUTCOMES, 0)
     terminated = truncated = False
     while not (terminated or truncated):
         action, was_random = agent.act(obs, info)
+        before = info
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         randoms += bool(was_random)
-        noops += info["moved"] < 0          # the pick found no object, or the place was refused
+        outcome = step_outcome(before, info)
+        outcomes[outcome] += 1
+        if on_step is not None:
+            on_step(agent, before, action, info, outcome)
     return {"success": int(terminated), "steps": steps, "min_steps": info["min_steps"],
-            "horizon": info["horizon"], "random_actions": randoms, "noop_actions": noops}
+            "horizon": info["horizon"], "random_actions": randoms,
+            "noop_actions": outcomes["picked_nothing"] + outcomes["refused"], **outcomes}
 
 
 def evaluate(make_agent, tasks: TaskSet, method: str) -> list[dict]:
@@ -98,11 +127,74 @@ def evaluate(make_agent, tasks: TaskSet, method: str) -> list[dict]:
     return rows
 
 
+def step_trace(make_agent, tasks: TaskSet) -> list[dict]:
+    """Every step of an NCS agent (`ncs`, `ncs-oracle`) on `tasks`, one row each: its outcome
+    (`step_outcome`) and, for a step along an edge, which object the selected entity holds
+    (the object under most of its mask, `held` its share of the mask; `area` the mask's share
+    of the image), how far the action's
+    pick lands from that object (`pick_error`, m) and, on a graph that keeps its transitions,
+    how far the pick point read from the entity's state is from it (`read_error`, m: the
+    graph's `readout`): a miss by a slot that holds no object, or by a state that places its
+    object wrongly, or by an action that does not follow its state."""
+    env = tasks.make_env()
+    agent = make_agent(env)
+    rows = []
+
+    def record(agent, before, action, after, outcome):
+        last = agent.last
+        row = {"episode": episode, "step": after["steps"], "outcome": outcome,
+               "fallback": last.get("fallback"), "object": -1, "held": float("nan"),
+               "pick_error": float("nan"), "read_error": float("nan"), "object_done": False,
+               "area": float("nan")}
+        if last.get("selected") is not None and last["current"].masks is not None:
+            entity = int(last["current_index"][last["selected"]])
+            mask = np.asarray(last["current"].masks[entity], np.float64)          # (H, W)
+            truth = np.asarray(before["masks"], np.float64)                       # (k, H, W)
+            mass = (truth * mask).sum((1, 2))
+            obj = int(mass.argmax())
+            where = np.asarray(before["positions"])[obj, :2]
+            row.update(object=obj, held=float(mass[obj] / max(mask.sum(), 1e-12)), area=float(mask.mean()),
+                       pick_error=float(np.linalg.norm(np.asarray(action)[:2] - where)),
+                       object_done=bool(before["constrained"][obj] and before["satisfied"][obj]))
+            graph = agent.graph
+            if graph.examples is not None:
+                from .ncs.graph import readout_features
+
+                state = last["current"].states[entity].reshape(1, -1)
+                read = (readout_features(state) @ graph.readout()[0]).numpy()[0]
+                row["read_error"] = float(np.linalg.norm(read - where))
+        rows.append(row)
+
+    try:
+        for episode in progress(range(tasks.episodes), desc=f"trace k={tasks.num_objects}", leave=False):
+            run_episode(agent, env, task_seed(tasks.seed, episode), on_step=record)
+    finally:
+        env.close()
+    return rows
+
+
+def trace_summary(rows: list[dict]) -> dict:
+    """A step trace in numbers: the share of each outcome, and over the steps whose pick
+    found nothing, the share whose entity held an object (held >= 0.5), the median pick and
+    read errors (m) and the share of reads within 5 cm."""
+    n = max(1, len(rows))
+    out = {f"{o}_fraction": sum(r["outcome"] == o for r in rows) / n for o in STEP_OUTCOMES}
+    missed = [r for r in rows if r["outcome"] == "picked_nothing" and r["object"] >= 0]
+    held = [r for r in missed if r["held"] >= 0.5]
+    reads = np.array([r["read_error"] for r in rows if np.isfinite(r["read_error"])])
+    out.update(steps=len(rows), missed_picks=len(missed),
+               missed_held_object=len(held) / max(1, len(missed)),
+               missed_pick_error_median=float(np.median([r["pick_error"] for r in missed])) if missed else float("nan"),
+               missed_read_error_median=float(np.nanmedian([r["read_error"] for r in missed])) if missed else float("nan"),
+               read_error_median=float(np.median(reads)) if len(reads) else float("nan"),
+               read_within_5cm=float((reads <= 0.05).mean()) if len(reads) else float("nan"))
+    return out
+
+
 def summarize(rows: list[dict]) -> list[dict]:
     """Rows grouped by everything but the episode -> success, 95% CI, mean steps, and the
     shares of actions that were random fallbacks and that changed nothing (no-ops)."""
-    keys = [c for c in COLUMNS if c not in ("episode", "task_seed", "success", "steps",
-                                            "min_steps", "horizon", "random_actions", "noop_actions")]
+    keys = [c for c in COLUMNS if c not in PER_EPISODE]
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in keys), []).append(r)
@@ -114,7 +206,8 @@ def summarize(rows: list[dict]) -> list[dict]:
         out.append({**dict(zip(keys, key)), "episodes": n, "success": s / n, "ci_low": lo,
                     "ci_high": hi, "mean_steps": steps / n,
                     "random_fraction": sum(r["random_actions"] for r in rs) / max(1, steps),
-                    "noop_fraction": sum(r["noop_actions"] for r in rs) / max(1, steps)})
+                    "noop_fraction": sum(r["noop_actions"] for r in rs) / max(1, steps),
+                    **{f"{o}_fraction": sum(r.get(o, 0) for r in rs) / max(1, steps) for o in STEP_OUTCOMES}})
     return out
 
 
@@ -245,7 +338,8 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
     check_graph_reading(graph, method, ncs, model)
-    extra = {"align": ncs.align, "nearest_variance": ncs.nearest_variance} if agent is NCSAgent else {}
+    extra = ({"align": ncs.align, "nearest_variance": ncs.nearest_variance, "edge_action": ncs.edge_action}
+             if agent is NCSAgent else {})
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed, **extra)
     return lambda env: agent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed,

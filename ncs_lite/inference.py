@@ -100,7 +100,7 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     shipped = _SHIPPED.get(env, {}).get("model")
     if preset == "reduced" and not train_from_scratch and shipped is not None and shipped.exists():
         return load_dslate(shipped, device), shipped
-    cfg = get_preset(preset)
+    cfg = get_preset(preset, env)
     cfg.train.seed = int(seed)
     path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))

@@ -586,7 +586,7 @@ def config_from_args(args) -> DSlateConfig:
     """The preset of `args.preset` with `--seed` and `--set` applied."""
     from .config import apply_overrides
 
-    cfg = get_preset(args.preset)
+    cfg = get_preset(args.preset, getattr(args, "env", "block-rearrange"))
     if getattr(args, "seed", None) is not None:
         if args.seed < 0:
             raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")

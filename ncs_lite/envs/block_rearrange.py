@@ -110,7 +110,8 @@ class BlockRearrange(RearrangeEnv):
       positions (k, 3), colors (k, 3), types (k, 3) what a cube is (= its colour),
       goal_positions (k, 3), constrained (k,) bool,
       masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
-      -1 for a no-op), min_steps, horizon, is_success.
+      -1 for a no-op), picked (int: the cube the pick found, -1 for none; a refused place
+      picks one and moves none), min_steps, horizon, is_success.
     """
 
     def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
@@ -226,23 +227,23 @@ class BlockRearrange(RearrangeEnv):
 
     # --------------------------------------------------------------- helpers
     def _apply(self, action: np.ndarray) -> int:
-        """Pick and move; return the index of the moved cube, or -1 for a no-op."""
+        """Pick and move; return (the picked cube or -1, the moved cube or -1 for a no-op)."""
         cfg = self.config
         w, target = action[:2], action[:2] + action[3:5]
         centres = self.cells[self._cell_of]
         dist = np.linalg.norm(centres - w, axis=1)
         picked = int(np.argmin(dist))
         if dist[picked] > cfg.pick_threshold:
-            return -1
+            return -1, -1
         if np.any(np.abs(target) > cfg.half_extent):
-            return -1  # off-grid
+            return picked, -1  # off-grid
         cell = int(np.argmin(np.linalg.norm(self.cells - target, axis=1)))
         if cell in self._cell_of:
-            return -1  # occupied (including by the picked cube itself)
+            return picked, -1  # occupied (including by the picked cube itself)
         self._cell_of[picked] = cell
-        return picked
+        return picked, picked
 
-    def _observe(self, moved: int):
+    def _observe(self, moved: int, picked: int = -1):
         self._image, masks = self._render()
         cfg = self.config
         z = np.full((cfg.num_objects, 1), cfg.cube / 2, np.float32)
@@ -252,7 +253,7 @@ class BlockRearrange(RearrangeEnv):
         info = {
             "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
             "types": self._colors.copy(), "constrained": self._constrained.copy(), "masks": masks,
-            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved),
+            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved), "picked": int(picked),
             "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
             "is_success": bool(np.all(satisfied[self._constrained])),
         }

@@ -97,7 +97,9 @@ def horizon(cfg, min_steps: int) -> int:
 class RearrangeEnv(gym.Env):
     """The step loop both rearrangement envs share. A subclass sets `config`, `action_space`,
     `horizon`, `_steps`, `_image` (None before the first reset) and provides `_closed()`,
-    `_apply(action) -> moved object or -1`, `_after_move()` and `_observe(moved)`."""
+    `_apply(action) -> (picked object or -1, moved object or -1)`, `_after_move()` and
+    `_observe(moved, picked)`. `info["picked"]` names the object the pick found even when the
+    place was refused (then `info["moved"]` is -1): why a step changed nothing."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
@@ -109,11 +111,11 @@ class RearrangeEnv(gym.Env):
         action = check_action(action, self.action_space, closed=self._closed(), reset=self._image is not None)
         if self.config.action_noise > 0:
             action = action + self.np_random.normal(0.0, self.config.action_noise, 6).astype(np.float32)
-        moved = self._apply(action)
+        picked, moved = self._apply(action)
         if moved >= 0:
             self._after_move()
         self._steps += 1
-        obs, info = self._observe(moved)
+        obs, info = self._observe(moved, picked)
         terminated = bool(info["is_success"])
         truncated = (not terminated) and self._steps >= self.horizon
         return obs, float(terminated), terminated, truncated, info

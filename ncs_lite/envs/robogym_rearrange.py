@@ -147,7 +147,7 @@ class RobogymRearrange(RearrangeEnv):
     Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
     info (ground truth for metrics and the oracle only; no learned agent may read it): the
     block-rearrange contract (positions (k, 3), colors (k, 3), goal_positions (k, 3),
-    constrained, masks, goal_masks, satisfied, moved, min_steps, horizon, steps,
+    constrained, masks, goal_masks, satisfied, moved, picked, min_steps, horizon, steps,
     is_success) plus shapes (k,) indices into `objects.OBJECTS` and types (k, 3 + 94): the
     colour and a one-hot shape, what an object is.
     """
@@ -322,16 +322,18 @@ class RobogymRearrange(RearrangeEnv):
         return bool(np.all(np.linalg.norm(centres[others] - xy, axis=1) >= radii[others] + r))
 
     def _apply(self, action: np.ndarray) -> int:
-        """Pick and move; return the index of the moved object, or -1 for a no-op."""
+        """Pick and move; return (the picked object or -1, the moved object or -1 for a no-op)."""
         w, target = action[:2], action[:2] + action[3:5]
         dist = np.linalg.norm(self.positions()[:, :2] - w, axis=1)
         picked = int(np.argmin(dist))
-        if dist[picked] > self.config.pick_threshold or not self.fits(picked, target):
-            return -1
+        if dist[picked] > self.config.pick_threshold:
+            return -1, -1
+        if not self.fits(picked, target):
+            return picked, -1
         self._set_pose(picked, target)
-        return picked
+        return picked, picked
 
-    def _observe(self, moved: int):
+    def _observe(self, moved: int, picked: int = -1):
         self._image, masks = self._render()
         cfg = self.config
         pos = self.positions()
@@ -342,7 +344,7 @@ class RobogymRearrange(RearrangeEnv):
             "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
             "shapes": self._shapes.copy(), "types": types,
             "constrained": self._constrained.copy(), "masks": masks,
-            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved),
+            "goal_masks": self._goal_masks.copy(), "satisfied": satisfied, "moved": int(moved), "picked": int(picked),
             "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
             "is_success": bool(np.all(satisfied[self._constrained])),
         }

@@ -55,7 +55,9 @@ BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
 STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Table 3's columns
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "nearest"}
-EDGE_ACTIONS = ("most_common", "nearest")
+EDGE_ACTIONS = ("most_common", "nearest", "compose", "readout")
+EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
+READOUT_RIDGE = 1e-3                    # ridge of the read-out's least squares, x its features' scale
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 
 
@@ -169,11 +171,26 @@ class TransitionGraph:
     edges: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)   # how it was built, coverage, counts
     examples: dict | None = None
-    _subspaces: dict = field(default_factory=dict, repr=False, compare=False)   # moved_subspace's
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)   # derived from `examples`
 
     @property
     def edge_action(self) -> str:
-        return "most_common" if self.examples is None else "nearest"
+        """How the graph was built to act (`build_graph`): "most_common", or one of
+        EXAMPLE_ACTIONS when it keeps its transitions' states (graphs that did not record
+        which acted "nearest")."""
+        if self.examples is None:
+            return "most_common"
+        return self.info.get("edge_action", "nearest")
+
+    def check_edge_action(self, edge_action: str) -> None:
+        """ValueError unless an agent can realise edges as `edge_action` on this graph: the
+        modes that read transitions' states need a graph that kept them."""
+        if edge_action not in EDGE_ACTIONS:
+            raise ValueError(f"edge_action must be one of {', '.join(map(repr, EDGE_ACTIONS))}, got {edge_action!r}")
+        if edge_action in EXAMPLE_ACTIONS and self.examples is None:
+            raise ValueError(f"edge_action {edge_action!r} reads the states of the graph's transitions, but this "
+                             "graph kept none (built with edge_action 'most_common'); build it with "
+                             "--set ncs.edge_action=nearest")
 
     @property
     def num_nodes(self) -> int:
@@ -214,36 +231,86 @@ class TransitionGraph:
             raise ValueError(f"variance must be in (0, 1], got {variance!r}")
         if variance == 1.0 or not self.examples or self.bind_metric != "sqeuclidean":
             return None
-        if variance not in self._subspaces:
+        key = ("subspace", variance)
+        if key not in self._cache:
             moves = torch.stack([a - b for ex in self.examples.values() for b, a in ex.values()]).double()
             _, energy, directions = torch.linalg.svd(moves, full_matrices=False)
             share = torch.cumsum(energy ** 2, 0) / (energy ** 2).sum()
             keep = int(torch.searchsorted(share, torch.tensor(variance, dtype=share.dtype))) + 1
-            self._subspaces[variance] = directions[:keep].T.float()
-        return self._subspaces[variance]
+            self._cache[key] = directions[:keep].T.float()
+        return self._cache[key]
+
+    def transitions(self) -> dict:
+        """Every kept transition as arrays: src, dst (E,) nodes, before, after (E, D) states,
+        actions (E, 6); in the order of `edges`."""
+        if "transitions" not in self._cache:
+            rows = [(s, d, a, b, e) for (s, d), ex in self.examples.items() for a, (b, e) in ex.items()]
+            self._cache["transitions"] = {
+                "src": torch.tensor([r[0] for r in rows]), "dst": torch.tensor([r[1] for r in rows]),
+                "actions": torch.tensor([r[2] for r in rows], dtype=torch.float32),
+                "before": torch.stack([r[3] for r in rows]), "after": torch.stack([r[4] for r in rows])}
+        return self._cache["transitions"]
+
+    def readout(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The read-outs of "readout" edge actions, fitted on every kept transition: (F, 2)
+        weights from `readout_features` of the start state to the pick point (w's x, y) and
+        of the end state to the place point (w + dw's x, y), by ridge least squares (float64)."""
+        if "readout" not in self._cache:
+            t = self.transitions()
+            picks, places = t["actions"][:, :2], t["actions"][:, :2] + t["actions"][:, 3:5]
+            self._cache["readout"] = tuple(_ridge(readout_features(x), y)
+                                           for x, y in ((t["before"], picks), (t["after"], places)))
+        return self._cache["readout"]
 
     def action(self, src: int, dst: int, before=None, after=None, rank: int = 0,
-               basis: torch.Tensor | None = None) -> np.ndarray | None:
-        """The action for edge src -> dst, or None when there is no such edge: the most
-        frequent one, or (edge_action "nearest", given the current state `before` and goal
-        state `after`) that of the rank-th nearest transition (see the module docstring),
-        its distances taken along `basis` (D, P) if given (`moved_subspace`)."""
+               basis: torch.Tensor | None = None, mode: str | None = None) -> np.ndarray | None:
+        """The action for edge src -> dst, or None when there is no such edge. `mode` (default
+        the graph's `edge_action`; see the module docstring): "most_common", the edge's most
+        frequent action; given the current state `before` and goal state `after`,
+        "nearest", that of the edge's rank-th nearest transition; "compose", the pick of the
+        rank-th nearest transition leaving src and the place of the rank-th nearest entering
+        dst; "readout", the pick and place read from the two states (`readout`), and on a
+        retry (rank r > 0) "compose"'s (rank r - 1). Distances are taken along `basis` (D, P)
+        if given (`moved_subspace`)."""
+        mode = mode or self.edge_action
         labels = self.edges.get((int(src), int(dst)))
         if not labels:
             return None
-        if self.examples is None or before is None:
+        if mode == "most_common" or before is None:
             return np.asarray(labels.most_common(1)[0][0], np.float32)
-        actions = list(self.examples[(int(src), int(dst))].items())
-        starts = torch.stack([b for _, (b, _) in actions])
-        ends = torch.stack([a for _, (_, a) in actions])
-        before = torch.as_tensor(before, dtype=starts.dtype).reshape(1, -1)
-        after = torch.as_tensor(after, dtype=ends.dtype).reshape(1, -1)
-        if basis is not None:
-            starts, ends, before, after = (x @ basis for x in (starts, ends, before, after))
-        cost = (pairwise_distances(starts, before, self.bind_metric)[:, 0]
-                + pairwise_distances(ends, after, self.bind_metric)[:, 0])
-        order = torch.argsort(cost, stable=True)
-        return np.asarray(actions[int(order[rank % len(actions)])][0], np.float32)
+        self.check_edge_action(mode)
+        t = self.transitions()
+        before = torch.as_tensor(before, dtype=torch.float32).reshape(1, -1)
+        after = torch.as_tensor(after, dtype=torch.float32).reshape(1, -1)
+        if mode == "readout" and rank == 0:
+            pick_w, place_w = self.readout()
+            pick, place = readout_features(before) @ pick_w, readout_features(after) @ place_w   # (1, 2)
+            z = self.action(src, dst, before, after, 0, basis, "nearest")[2]
+            return np.array([*pick[0].tolist(), z, *(place - pick)[0].tolist(), 0.0], np.float32)
+        rank = rank - 1 if mode == "readout" else rank
+
+        def nearest(rows, states, state):          # index into t of the rank-th nearest transition
+            idx = torch.nonzero(rows).reshape(-1)
+            x = states[idx]
+            if basis is not None:
+                x, state = x @ basis, state @ basis
+            order = torch.argsort(pairwise_distances(x, state, self.bind_metric)[:, 0], stable=True)
+            return int(idx[order[rank % len(idx)]])
+
+        if mode == "nearest":
+            on_edge = (t["src"] == int(src)) & (t["dst"] == int(dst))
+            idx = torch.nonzero(on_edge).reshape(-1)
+            starts, ends, b, a = t["before"][idx], t["after"][idx], before, after
+            if basis is not None:
+                starts, ends, b, a = (x @ basis for x in (starts, ends, b, a))
+            cost = (pairwise_distances(starts, b, self.bind_metric)[:, 0]
+                    + pairwise_distances(ends, a, self.bind_metric)[:, 0])
+            order = torch.argsort(cost, stable=True)
+            return t["actions"][int(idx[order[rank % len(idx)]])].numpy().copy()
+        leave = t["actions"][nearest(t["src"] == int(src), t["before"], before)]
+        enter = t["actions"][nearest(t["dst"] == int(dst), t["after"], after)]
+        place = enter[:2] + enter[3:5]
+        return np.array([*leave[:3].tolist(), *(place - leave[:2]).tolist(), 0.0], np.float32)
 
     def add(self, src: torch.Tensor, dst: torch.Tensor, actions: np.ndarray, before=None, after=None) -> None:
         """Edges for transitions src -> dst with their actions; with before/after states (M, D)
@@ -319,6 +386,23 @@ class TransitionGraph:
         return np.lexsort((pos[:, 0], rows))
 
 
+def readout_features(states: torch.Tensor) -> torch.Tensor:
+    """(M, D) states -> (M, 1 + D + D(D+1)/2): a constant, the states and their pairwise
+    products, so that a linear read-out can bend with the camera's perspective."""
+    states = states.double()
+    i, j = torch.triu_indices(states.shape[1], states.shape[1])
+    return torch.cat([torch.ones(len(states), 1, dtype=states.dtype), states, states[:, i] * states[:, j]], 1)
+
+
+def _ridge(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """(F, O) least-squares weights from features x (M, F) to targets y (M, O), with a ridge of
+    READOUT_RIDGE x the features' mean square (the constant column unpenalised)."""
+    y = y.double()
+    penalty = torch.eye(x.shape[1], dtype=x.dtype) * READOUT_RIDGE * (x ** 2).mean()
+    penalty[0, 0] = 0.0
+    return torch.linalg.solve(x.T @ x + penalty * len(x), x.T @ y)
+
+
 def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.ndarray, *,
                 clusters: int, state: str = "mask", seed: int = 0, max_iter: int = 100,
                 true_entity: np.ndarray | None = None, edge_action: str = "most_common") -> TransitionGraph:
@@ -342,7 +426,7 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     result = kmeans(torch.cat([before, after]), clusters, metrics["cluster"], seed=seed,
                     max_iter=max_iter)
     graph = TransitionGraph(result.centroids, metrics["bind"])
-    examples = (before, after) if edge_action == "nearest" else (None, None)
+    examples = (before, after) if edge_action in EXAMPLE_ACTIONS else (None, None)
     graph.add(graph.bind(before), graph.bind(after), actions, *examples)
     graph.info = {"transitions": int(len(moved)), "clusters": int(clusters), "state": state,
                   "edge_action": edge_action,
@@ -373,5 +457,5 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
     return graph
 
 
-__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
+__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
            "isolate", "isolate_distance"]

@@ -63,7 +63,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from ..config import NCSConfig
-from .graph import TransitionGraph, isolate_distance
+from .graph import EXAMPLE_ACTIONS, TransitionGraph, isolate_distance
 
 
 def type_distances(current_types: torch.Tensor, goal_types: torch.Tensor) -> torch.Tensor:
@@ -112,11 +112,14 @@ class NCSAgent:
     was built on (`TransitionGraph.check_state`)."""
 
     def __init__(self, graph: TransitionGraph, perception, action_space, seed: int = 0,
-                 align: str = "near", nearest_variance: float = NCSConfig.nearest_variance):
+                 align: str = "near", nearest_variance: float = NCSConfig.nearest_variance,
+                 edge_action: str | None = None):
         if getattr(perception, "graph_state", None) is not None:
             graph.check_state(perception.graph_state)
         if align not in ALIGN_RULES:
             raise ValueError(f"align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {align!r}")
+        self.edge_action = edge_action or graph.edge_action     # how an edge becomes an action
+        graph.check_edge_action(self.edge_action)
         self.align = align
         self._basis = graph.moved_subspace(nearest_variance)   # "nearest" edge actions compare along it
         self.graph, self.perception, self.action_space = graph, perception, action_space
@@ -153,7 +156,7 @@ class NCSAgent:
         g_idx, c_idx = match(cost.numpy(), self.align)                # = align(cur.types, goal.types, self.align)
         raw = constraint_distances(cur.states[c_idx], goal.states[g_idx]).numpy().astype(np.float64)
         src, dst = self.graph.bind(torch.stack([cur.states[c_idx], goal.states[g_idx]])).numpy()  # (P,) each
-        nearest = self.graph.edge_action == "nearest"
+        nearest = self.edge_action in EXAMPLE_ACTIONS
         same = (src == dst) & (not nearest)
         dist = np.where(same, 0.0, raw)           # same node: satisfied at the graph's resolution
         total = dist.sum()
@@ -174,7 +177,8 @@ class NCSAgent:
             rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
             self._retry = (key, rank)
             self.last["rank"] = rank
-            action = self.graph.action(src[pick], dst[pick], before, after, rank, basis=self._basis)
+            action = self.graph.action(src[pick], dst[pick], before, after, rank, basis=self._basis,
+                                       mode=self.edge_action)
         else:
             action = self.graph.action(src[pick], dst[pick])
         if action is None:
