@@ -42,7 +42,7 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
-	# notebooks 04-07 once more on robogym-rearrange (issue 14): same parameters but `env`; executed
+	# notebooks 04-07 once more on robogym-rearrange: same parameters but `env`; executed
 	# copies <name>_robogym.ipynb, figures in figures/<name>/robogym-rearrange/, times as <name>_robogym
 	for nb in $(ENV_NOTEBOOKS); do \
 	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=robogym-rearrange)"; start=$$(date +%s.%N); \
@@ -112,27 +112,24 @@ $(ASSETS)/bc_block_rearrange_reduced.pt: | $(TRAIN_DATA)/manifest.json
 $(ASSETS)/iql_block_rearrange_reduced.pt: | $(TRAIN_DATA)/manifest.json
 	$(PY) -m ncs_lite train-baseline --method iql --preset reduced --data $(TRAIN_DATA) --out $@
 
-# robogym-rearrange's shipped assets (issue 14): the buffer, the `reduced` dSLATE, its graph on
-# slot states and the position oracle's graph (Tables 3-4 defaults: 45 nodes, slot metrics,
-# "nearest" edge actions). Training is about 25 min on 2 cores; only missing files are made.
+# robogym-rearrange's shipped assets: the buffers (5,000 episodes for training, 20,000 for the
+# graphs: continuous positions need more exemplars per node than grid cells), the `reduced`
+# dSLATE of the training seed the seeds table ships (`reproduce seeds --env robogym-rearrange`
+# picks it by its held-out reconstruction error, `shipped_seed` in its JSON), its graph on slot
+# states and the position oracle's graph (Tables 3-4 defaults: 45 nodes, slot metrics).
+# Training is about 30 min on 2 cores; only missing files are made.
 RG_DATA  := .cache/buffers/robogym-rearrange-k4-e5000-s0-v1
-# the graphs read 20,000 episodes (the first 5,000 are RG_DATA's): an edge action must start
-# within the 5 cm pick threshold of the object and end within 5 cm of its goal, and the
-# position oracle solved 78 of 100 4-object tasks from 5,000 episodes, 97 from 20,000
 RG_GRAPH_DATA := .cache/buffers/robogym-rearrange-k4-e20000-s0-v1
+RG_SEED  ?= $(shell python3 -c "import json; print(json.load(open('figures/tables/seeds_robogym_reduced.json'))['shipped_seed'])" 2>/dev/null)
 RG_ASSETS := $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt \
   $(ASSETS)/graph_robogym_rearrange_oracle_position.pt
 .PHONY: robogym-assets
 robogym-assets: $(RG_ASSETS)
 $(RG_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 5000 --seed 0 --out $(RG_DATA)
-# trained before the per-slot polish (`reduced` since 17ffe74), the render phase, the
-# position prior and the refit phase: these overrides remake the shipped file
-RG_RECIPE := --set train.polish_steps=600 --set train.polish_mixture_error=mixed \
-  --set mixture.render_hidden=0 --set train.render_steps=0 --set slots.position_prior=0 \
-  --set train.refit_steps=0
 $(ASSETS)/dslate_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
-	$(PY) -m ncs_lite train --env robogym-rearrange --preset reduced $(RG_RECIPE) --data $(RG_DATA) --out $@ --seed 0
+	@test -n "$(RG_SEED)" || { echo "make: figures/tables/seeds_robogym_reduced.json names no shipped_seed; run 'python -m ncs_lite reproduce seeds --env robogym-rearrange' or pass RG_SEED=N"; exit 2; }
+	$(PY) -m ncs_lite train --env robogym-rearrange --preset reduced --data $(RG_DATA) --out $@ --seed $(RG_SEED)
 $(RG_GRAPH_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 20000 --seed 0 --out $(RG_GRAPH_DATA)
 $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt: | $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(RG_GRAPH_DATA)/manifest.json
@@ -140,7 +137,7 @@ $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt: | $(ASSETS)/dslate_robogym_re
 $(ASSETS)/graph_robogym_rearrange_oracle_position.pt: | $(RG_GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --oracle --data $(RG_GRAPH_DATA) --out $@
 
-# robogym-rearrange's baselines (issue 14: notebook 07's robogym columns): BC and IQL on the
+# robogym-rearrange's baselines (notebook 07's robogym columns): BC and IQL on the
 # training buffer, NF bound by the shipped graphs' nodes on the graph buffer; only missing files
 RG_BASELINE_ASSETS := $(ASSETS)/bc_robogym_rearrange_reduced.pt $(ASSETS)/iql_robogym_rearrange_reduced.pt \
   $(ASSETS)/nf_graph_robogym_rearrange_reduced.pt $(ASSETS)/nf_graph_robogym_rearrange_oracle.pt

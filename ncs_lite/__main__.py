@@ -35,7 +35,7 @@ def _graph(args):
     from .inference import load_dslate
     from .ncs.graph import build_graph
     from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
-    from .utils import check_out_file, provenance, relative_to_repo, sha256_file
+    from .utils import check_file_env, check_out_file, provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
@@ -47,14 +47,17 @@ def _graph(args):
     clusters = args.clusters if args.clusters is not None else CLUSTERS_BY_ENV.get(env)   # 0 is refused
     cfg = ncs_config(args.overrides, clusters=clusters, seed=args.seed,
                      state=args.state or STATE_BY_ENV.get(env), edge_action=EDGE_ACTION_BY_ENV.get(env))
+    model = None if args.oracle else load_dslate(args.checkpoint)
+    if model is not None:
+        check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
+                  DSlatePerception(model, iterations=cfg.iterations,
                                    restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
     graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
                         seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info
-    graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
+    graph.info.update(env=env, data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
                       oracle=args.oracle, perception_state=perception.state, ncs=to_dict(cfg),
@@ -72,7 +75,7 @@ def _evaluate(args):
                              summarize, write_csv)
     from .inference import load_dslate, shipped_asset
     from .ncs.graph import TransitionGraph
-    from .utils import check_out_file, provenance
+    from .utils import check_file_env, check_out_file, provenance, recorded_env
 
     if args.out:
         check_out_file(args.out, "CSV")         # before the episodes, not after them
@@ -96,6 +99,7 @@ def _evaluate(args):
     graph = None
     if "graph" in needs:
         graph = (SetGraph if args.method.startswith("nf") else TransitionGraph).load(paths["graph"])
+        check_file_env("--graph", paths["graph"], recorded_env(graph.info), args.env)
     # the agent reads the kind of state its graph was built on: unless --state (or
     # --set ncs.state) says otherwise, and then the graph must agree (checked below)
     cfg = ncs_config(sections["ncs"], state=args.state if asked or graph is None else graph.state)

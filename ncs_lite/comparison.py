@@ -101,9 +101,10 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
         st, st1, acts, true = buffer_transitions(perception, data)
         graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
                             edge_action=ncs.edge_action)
-        graph.info.update(slot_read(perception))
+        graph.info.update(env=env, **slot_read(perception))
         out[f"{name}graph"] = graph
         out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph, state=state)
+        out[f"nf_{name}graph"].info["env"] = env
     for method in ("bc", "iql"):
         out[method], path = obtain_policy(method, preset, seed, env=env)
         out["paths"][method] = str(path)

@@ -223,7 +223,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                     perception, cached_buffer(graph_episodes, env=env, seed=0))
                 graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=state,
                                     seed=ncs.seed, true_entity=moved, edge_action=ncs.edge_action)
-                graph.info.update(key=graph_key, state=state, **slot_read(perception))
+                graph.info.update(key=graph_key, state=state, env=env, **slot_read(perception))
                 graph.save(graph_path)
             row[f"graph_edges{suffix}"] = graph.num_edges
             row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
@@ -298,7 +298,7 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
         st, st1, acts, moved = buffer_transitions(perception, cached_buffer(graph_episodes, env=env, seed=0))
         graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=ncs.state, seed=ncs.seed,
                             true_entity=moved, edge_action=ncs.edge_action)
-        graph.info.update(key=key, **slot_read(perception))
+        graph.info.update(key=key, env=env, **slot_read(perception))
         graph.save(path)
     row = {}
     for k in objects:
@@ -429,11 +429,13 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
 def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
                   checkpoint=None, graph=None, oracle_graph=None, out_dir=None,
                   allow_dirty: bool = False) -> dict:
-    """Issue 14's numbers from robogym-rearrange's shipped `reduced` assets (or the given
-    files): the type/state split's metrics on 100 held-out episodes, fg-ARI at 4 objects with
-    one start and with NCS's restarts, and success of `ncs` (slot states, the shipped graph),
-    `ncs-oracle` (positions) and `random` on `episodes` seeded tasks per count (complete
-    goals, horizon 4x). Each evaluation is cached by its inputs (`evaluate_method`)."""
+    """robogym-rearrange's shipped `reduced` assets (or the given files) measured: the
+    type/state split's metrics on 100 held-out episodes, fg-ARI at 4 objects with one start
+    and with NCS's restarts, and success of `ncs` (slot states, the shipped graph),
+    `ncs-oracle` (positions) and `random` on `episodes` seeded tasks per count, complete
+    goals (`<method>_<k>`) and partial goals (`<method>_partial_<k>`), horizon 4x, with the
+    share of steps that placed an object at its goal and that picked nothing
+    (`evaluation.step_outcome`). Each evaluation is cached by its inputs (`evaluate_method`)."""
     from .config import NCSConfig, to_dict
     from .data import cached_buffer, load_buffer
     from .evaluation import TaskSet, evaluate_methods, summarize
@@ -459,19 +461,22 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     row.update(graph_edges=learned.num_edges, coverage=round(learned.info.get("coverage", float("nan")), 4),
                oracle_graph_edges=oracle.num_edges)
     methods = (("ncs", {"graph": learned, "model": model}), ("ncs-oracle", {"graph": oracle}), ("random", {}))
-    jobs = [(method, TaskSet(env=env, num_objects=k, episodes=episodes, seed=0), {"ncs": ncs, **kwargs})
-            for k in objects for method, kwargs in methods]
+    goals = ("complete", "partial")
+    jobs = [(method, TaskSet(env=env, num_objects=k, goal=goal, episodes=episodes, seed=0), {"ncs": ncs, **kwargs})
+            for goal in goals for k in objects for method, kwargs in methods]
     cells = iter(evaluate_methods(jobs, desc="robogym evaluation"))     # worker processes, a loop's rows
-    for k in objects:
-        for method, _ in methods:
-            s = summarize(next(cells))[0]
-            key = method.replace("-", "_")
-            row[f"{key}_{k}"] = s["success"]
-            row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
-            row[f"{key}_random_fraction_{k}"] = round(s["random_fraction"], 3)
-            row[f"{key}_noop_fraction_{k}"] = round(s["noop_fraction"], 3)
-        print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
-    meta = {"env": env, "episodes": episodes, "objects": list(objects), "images": images, "ncs": to_dict(ncs),
+    for goal in goals:
+        for k in objects:
+            for method, _ in methods:
+                s = summarize(next(cells))[0]
+                key = method.replace("-", "_") + ("" if goal == "complete" else "_partial")
+                row[f"{key}_{k}"] = s["success"]
+                row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+                for share in ("random", "noop", "placed", "picked_nothing"):
+                    row[f"{key}_{share}_fraction_{k}"] = round(s[f"{share}_fraction"], 3)
+            print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
+    meta = {"env": env, "episodes": episodes, "objects": list(objects), "goals": list(goals), "images": images,
+            "ncs": to_dict(ncs),
             **{name: relative_to_repo(p) for name, p in paths.items()},
             **{f"{name}_sha256": sha256_file(p) for name, p in paths.items()}}
     write_table("robogym_reduced", [row], meta, out_dir, allow_dirty)

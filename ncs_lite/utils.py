@@ -202,6 +202,27 @@ def check_weights(sd: dict, path, keys: tuple[str, ...]) -> dict:
     return sd
 
 
+def recorded_env(info: dict) -> str | None:
+    """The env a graph or NF graph was made on: `info["env"]`, or for a file made before it
+    was recorded, the env that names the buffer it was built from (`info["data"]`,
+    ".cache/buffers/<env>-k4-..."); None when neither says."""
+    if info.get("env"):
+        return str(info["env"])
+    name = Path(str(info.get("data") or "")).name
+    for env in ("block-rearrange", "robogym-rearrange", "block-stacking"):
+        if name.startswith(env + "-"):
+            return env
+    return None
+
+
+def check_file_env(flag: str, path, made_on: str | None, expected: str | None) -> None:
+    """ValueError naming the file and both envs when a file made on one env would be used on
+    another; a file (or a use) that names no env passes."""
+    if made_on is not None and expected is not None and made_on != expected:
+        raise ValueError(f"{flag} {path} was made on {made_on!r}, not {expected!r}; pass a file made on "
+                         f"{expected} (or use it with {made_on})")
+
+
 def check_out_file(path: str | os.PathLike, what: str) -> Path:
     """ValueError naming `path` unless a `what` file can be written there: not a directory,
     not below a file. Checked before the work, which would otherwise fail at its first save."""

@@ -639,3 +639,36 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     assert DSlatePerception(plain, state="slot").slot_position == "attention"
     with pytest.raises(ValueError, match="this model has none"):
         DSlatePerception(plain, state="slot", slot_position="assigned")
+
+
+def test_step_trace_classifies_every_step_and_names_the_selected_object(oracle_graph):
+    """The oracle on block-rearrange places a cube at its goal with every edge step; each row
+    names the cube its entity holds (a ground-truth mask: held 1) and the pick lands on it."""
+    from ncs_lite.evaluation import STEP_OUTCOMES, step_trace, trace_summary
+
+    tasks = TaskSet(num_objects=4, episodes=3, seed=0)
+    make_agent = agent_factory("ncs-oracle", graph=oracle_graph)
+    rows = step_trace(make_agent, tasks)
+    summary = summarize(evaluate(make_agent, tasks, "ncs-oracle"))[0]
+    assert len(rows) == round(summary["mean_steps"] * 3)
+    assert {r["outcome"] for r in rows} <= set(STEP_OUTCOMES)
+    edge_steps = [r for r in rows if r["fallback"] is None]
+    assert edge_steps and all(r["held"] == 1.0 and r["object"] >= 0 for r in edge_steps)
+    assert all(r["pick_error"] < 1e-3 for r in edge_steps)            # the cell's centre
+    s = trace_summary(rows)
+    assert s["steps"] == len(rows) and s["placed_fraction"] == pytest.approx(
+        sum(r["outcome"] == "placed" for r in rows) / len(rows))
+    assert s["placed_fraction"] == pytest.approx(summary["placed_fraction"])
+    assert np.isnan(s["read_error_median"])          # a "most_common" graph keeps no states to read
+
+
+def test_files_of_another_env_are_refused_in_one_line():
+    from ncs_lite.utils import check_file_env, recorded_env
+
+    assert recorded_env({"env": "robogym-rearrange"}) == "robogym-rearrange"
+    assert recorded_env({"data": ".cache/buffers/block-rearrange-k4-e5000-s0-v1"}) == "block-rearrange"
+    assert recorded_env({"data": None}) is None
+    check_file_env("--graph", "g.pt", None, "block-rearrange")                 # names none: passes
+    check_file_env("--graph", "g.pt", "block-rearrange", "block-rearrange")
+    with pytest.raises(ValueError, match=r"--graph g\.pt was made on 'block-rearrange', not 'robogym-rearrange'"):
+        check_file_env("--graph", "g.pt", "block-rearrange", "robogym-rearrange")

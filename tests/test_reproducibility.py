@@ -249,7 +249,7 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
          f"--graph {slot_graph}: the graph was built on slot states read with slot_position 'assigned'; "
          "the agent would act with 'attention'"),
         (["evaluate", "--method", "ncs-oracle", "--graph", str(ROBOGYM_POSITION_GRAPH), "--episodes", "1"],
-         "edge actions lie outside the env's action space"),        # how many depends on the shipped graph
+         f"--graph {ROBOGYM_POSITION_GRAPH} was made on 'robogym-rearrange', not 'block-rearrange'"),
         (["graph-nf", "--oracle", "--bind-graph", slot_graph, "--data", buf, "--out", str(tmp_path / "nf.pt")],
          f"--bind-graph {slot_graph}: the graph's nodes are 'slot' states of 4 numbers"),
         (["evaluate", "--method", "random", "--checkpoint", str(SHIPPED_CHECKPOINT), "--episodes", "1"],
@@ -269,7 +269,7 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
         (["reproduce", "seeds", "--preset", "ci", "--set", "ncs.restarts=0", "--runs", str(tmp_path)],
          "ncs.restarts must be an integer >= 1, got 0"),
         (["reproduce", "baselines", "--env", "bogus"], "unknown --env 'bogus'; expected one of block-rearrange"),
-        (["reproduce", "clusters", "--env", "robogym-rearrange"], "--env is for the baselines table"),
+        (["reproduce", "clusters", "--env", "robogym-rearrange"], "--env is for the seeds and baselines tables"),
         (["reproduce", "clusters", "--out-dir", str(afile)], f"--out-dir {afile} is a file; expected a table directory"),
         (["bench", "envs", "--out", str(tmp_path)], f"--out {tmp_path} is a directory; expected the path of a JSON file"),
     ]
@@ -429,3 +429,17 @@ def test_reproduce_robogym_reads_the_given_graph(tmp_path, capsys):
                  "--allow-dirty"]) == 2
     err = capsys.readouterr().err
     assert str(tmp_path / "half.pt") in err and err.count("\n") == 1, err
+
+
+def test_a_graph_whose_actions_leave_the_action_space_is_refused():
+    from ncs_lite.envs import make
+    from ncs_lite.evaluation import check_graph_actions
+    from ncs_lite.inference import ROBOGYM_POSITION_GRAPH
+    from ncs_lite.ncs.graph import TransitionGraph
+
+    env = make("block-rearrange", num_objects=4)
+    try:
+        with pytest.raises(ValueError, match="edge actions lie outside the env's action space"):
+            check_graph_actions(TransitionGraph.load(ROBOGYM_POSITION_GRAPH), env.action_space)
+    finally:
+        env.close()

@@ -340,3 +340,68 @@ def test_lattice_holds_the_largest_footprint_in_each_cell():
     assert len(cells) == 15                                   # 3 x 5 on 0.6 x 0.8 m
     assert footprints_clear(cells, np.full(len(cells), 0.0778 + cfg.gap / 2))
     assert np.all(np.abs(cells) <= np.array([0.3, 0.4]) - 0.0778 + 1e-9)
+
+
+def _two_node_graph(edge_action):
+    """Entity 0 moves from around x = 0 to around x = 1 (states (x, y, 1)); actions pick at the
+    state's (x, y) and place at the end state's (x, y), as a perfect perception would see."""
+    rng = np.random.default_rng(0)
+    start = np.c_[rng.uniform(-0.1, 0.1, (40, 2)), np.ones(40)]
+    end = start + np.array([1.0, 0.0, 0.0])
+    end[:, :2] += rng.uniform(-0.1, 0.1, (40, 2))
+    actions = np.zeros((40, 6), np.float32)
+    actions[:, :2], actions[:, 3:5] = start[:, :2], end[:, :2] - start[:, :2]
+    graph = build_graph(torch.tensor(start, dtype=torch.float32)[:, None],
+                        torch.tensor(end, dtype=torch.float32)[:, None], actions, clusters=2, state="slot",
+                        edge_action=edge_action)
+    return graph, start, end, actions
+
+
+def test_compose_and_readout_edge_actions_land_where_the_states_say():
+    graph, start, end, actions = _two_node_graph("readout")
+    assert graph.edge_action == "readout" and graph.info["edge_action"] == "readout"
+    now, goal = torch.tensor([0.033, -0.021, 1.0]), torch.tensor([1.047, 0.061, 1.0])
+    src, dst = graph.bind(torch.stack([now, goal])).tolist()
+    read = graph.action(src, dst, now, goal)
+    assert np.allclose(read[:2], now[:2], atol=1e-3) and np.allclose(read[:2] + read[3:5], goal[:2], atol=1e-3)
+    # compose: the pick of the transition whose start is nearest now, the place of the one
+    # whose end is nearest the goal (here two different transitions)
+    comp = graph.action(src, dst, now, goal, mode="compose")
+    i = np.argmin(((start - now.numpy()) ** 2).sum(1))
+    j = np.argmin(((end - goal.numpy()) ** 2).sum(1))
+    assert i != j
+    assert np.allclose(comp[:2], actions[i, :2], atol=1e-4)      # actions are kept to 0.1 mm
+    assert np.allclose(comp[:2] + comp[3:5], end[j, :2], atol=2e-4)
+    # a retry of "readout" takes compose's nearest, then the next
+    assert np.allclose(graph.action(src, dst, now, goal, rank=1), comp)
+    nearest = graph.action(src, dst, now, goal, mode="nearest")
+    assert not np.allclose(nearest, read)
+    # the modes that read states need a graph that kept them
+    plain, *_ = _two_node_graph("most_common")
+    with pytest.raises(ValueError, match="kept none"):
+        plain.check_edge_action("readout")
+    with pytest.raises(ValueError, match="edge_action must be one of"):
+        graph.check_edge_action("closest")
+
+
+def test_a_refused_place_names_the_picked_object_and_step_outcomes_say_why():
+    from ncs_lite.evaluation import step_outcome
+
+    e = make("robogym-rearrange", num_objects=3)
+    _, info = e.reset(seed=2)
+    pos = info["positions"]
+    _, _, _, _, after = e.step(e.pick_and_move(0, pos[1, :2]))          # onto object 1: refused
+    assert after["moved"] == -1 and after["picked"] == 0 and step_outcome(info, after) == "refused"
+    far = np.array([0.29, 0.39]) if np.linalg.norm(pos[:, :2] - [0.29, 0.39], axis=1).min() > 0.05 else np.array([-0.29, -0.39])
+    miss = np.array([*far, 0.0, 0.0, 0.0, 0.0], np.float32)
+    _, _, _, _, nothing = e.step(miss)
+    assert nothing["picked"] == -1 and step_outcome(after, nothing) == "picked_nothing"
+    _, _, _, _, placed = e.step(e.pick_and_move(0, info["goal_positions"][0, :2]))
+    assert placed["moved"] == 0 and step_outcome(nothing, placed) == "placed"
+    spot = e._free_spot(e._radius[info["shapes"][0]], placed["positions"][1:, :2],
+                        e._radius[info["shapes"][1:]], np.random.default_rng(0))
+    _, _, _, _, undone = e.step(e.pick_and_move(0, spot))
+    assert undone["moved"] == 0 and step_outcome(placed, undone) == "moved_done"
+    _, _, _, _, elsewhere = e.step(e.pick_and_move(1, undone["positions"][1, :2] + [0.0, 0.001]))
+    assert elsewhere["moved"] == 1 and step_outcome(undone, elsewhere) == "off_goal"
+    e.close()

@@ -375,3 +375,14 @@ def test_seeds_keep_a_run_of_an_earlier_recipe_to_extend_it(buffer, tmp_path):
     train(ci(), buffer, old, extend=base)
     _keep_for_extending(old, ci())                             # the extended run is this recipe's
     assert old.exists()
+
+
+def test_env_overrides_apply_to_their_preset_and_env_only():
+    from ncs_lite.config import ENV_OVERRIDES, apply_overrides, get_preset
+
+    assert get_preset("reduced", "robogym-rearrange").dvae.foreground_weight == 20.0
+    assert get_preset("reduced").dvae.foreground_weight == 5.0
+    for env, presets in ENV_OVERRIDES.items():
+        for name, overrides in presets.items():
+            assert get_preset(name, env) == apply_overrides(get_preset(name), overrides)
+            assert get_preset(name, env) != get_preset(name)          # each changes something

@@ -57,7 +57,7 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
     from ..cache import code_digest
     from ..data import load_buffer, load_manifest, manifest_hash
     from ..envs import make
-    from ..utils import check_out_file, provenance, relative_to_repo
+    from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
 
     _method(method)
     out = check_out_file(out, f"{method} checkpoint")
@@ -94,7 +94,7 @@ def _unfit(path: Path, method: str, cfg, env: str, data: Path) -> str | None:
     from dataclasses import asdict
 
     from ..cache import code_digest
-    from ..data import manifest_hash
+    from ..data import load_manifest, manifest_hash
 
     try:
         ckpt = read_checkpoint(path, method)
@@ -148,17 +148,23 @@ def _train_baseline(args) -> None:
 
 def _graph_nf(args) -> None:
     from ..config import ncs_config, to_dict
-    from ..data import manifest_hash
+    from ..data import load_manifest, manifest_hash
     from ..inference import load_dslate
     from ..ncs.graph import TransitionGraph
     from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
-    from ..utils import check_out_file, provenance, relative_to_repo
+    from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
     from .nf import set_graph_from_transitions
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NF) or --oracle")
     check_out_file(args.out, "NF graph")
+    env = load_manifest(args.data)["env"]["env"]
     bind = TransitionGraph.load(args.bind_graph) if args.bind_graph else None
+    if bind is not None:
+        check_file_env("--bind-graph", args.bind_graph, recorded_env(bind.info), env)
+    model = None if args.oracle else load_dslate(args.checkpoint)
+    if model is not None:
+        check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
     if bind is not None and args.clusters is not None and args.clusters != bind.num_nodes:
         raise ValueError(f"--clusters {args.clusters}: the entities bind to --bind-graph's {bind.num_nodes} "
                          "nodes; drop --clusters (it sets NF's own k-means, without --bind-graph)")
@@ -166,7 +172,7 @@ def _graph_nf(args) -> None:
                      state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)
     perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(load_dslate(args.checkpoint), iterations=cfg.iterations,
+                  DSlatePerception(model, iterations=cfg.iterations,
                                    restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
@@ -175,7 +181,7 @@ def _graph_nf(args) -> None:
         if bind is None:
             raise
         raise ValueError(f"--bind-graph {args.bind_graph}: {exc}") from None
-    graph.info.update(data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
+    graph.info.update(env=env, data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
                       checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       bind_graph=relative_to_repo(args.bind_graph) if args.bind_graph else None,
                       oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides),

@@ -57,7 +57,7 @@ STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Ta
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "nearest"}
 EDGE_ACTIONS = ("most_common", "nearest", "compose", "readout")
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
-READOUT_RIDGE = 1e-3                    # ridge of the read-out's least squares, x its features' scale
+READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 
 
@@ -395,11 +395,11 @@ def readout_features(states: torch.Tensor) -> torch.Tensor:
 
 
 def _ridge(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """(F, O) least-squares weights from features x (M, F) to targets y (M, O), with a ridge of
-    READOUT_RIDGE x the features' mean square (the constant column unpenalised)."""
+    """(F, O) least-squares weights from features x (M, F) to targets y (M, O), each feature's
+    ridge READOUT_RIDGE x its variance (scale-free; a constant feature, such as the oracle's
+    resting height, gets a vanishing one that only keeps the system solvable)."""
     y = y.double()
-    penalty = torch.eye(x.shape[1], dtype=x.dtype) * READOUT_RIDGE * (x ** 2).mean()
-    penalty[0, 0] = 0.0
+    penalty = torch.diag(READOUT_RIDGE * x.var(0, unbiased=False) + 1e-9)
     return torch.linalg.solve(x.T @ x + penalty * len(x), x.T @ y)
 
 
