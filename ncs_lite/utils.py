@@ -352,8 +352,9 @@ def sha256_file(path: str | os.PathLike) -> str:
 
 
 def source_hash(*parts: str) -> str:
-    """sha256 over the kit's Python sources under `parts` (files or folders of ncs_lite/):
-    the code version that caches and `--resume` are keyed by."""
+    """sha256 over the code of the kit's Python sources under `parts` (files or folders of
+    ncs_lite/): the code version that caches and `--resume` are keyed by. It reads each file's
+    syntax tree without docstrings (`code_of`), so prose, comments and layout change no key."""
     import hashlib
 
     h = hashlib.sha256()
@@ -362,8 +363,23 @@ def source_hash(*parts: str) -> str:
         files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
         for f in files:
             h.update(str(f.relative_to(PACKAGE_DIR)).encode())
-            h.update(f.read_bytes())
+            h.update(code_of(f.read_text()).encode())
     return h.hexdigest()[:16]
+
+
+def code_of(source: str) -> str:
+    """What Python runs of `source`: its syntax tree, dumped without positions, comments or
+    docstrings (a module's, class's or function's first statement when it is a string)."""
+    import ast
+
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str):
+                node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree)
 
 
 def _repo_path(variable: str, default: Path) -> Path:

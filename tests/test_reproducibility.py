@@ -443,3 +443,14 @@ def test_a_graph_whose_actions_leave_the_action_space_is_refused():
             check_graph_actions(TransitionGraph.load(ROBOGYM_POSITION_GRAPH), env.action_space)
     finally:
         env.close()
+
+
+def test_code_keys_ignore_prose_but_not_code():
+    from ncs_lite.utils import code_of
+
+    base = 'def f(x):\n    """Adds one."""\n    return x + 1  # one\n'
+    assert code_of(base) == code_of('def f(x):\n    """Adds one, for a reason."""\n\n    return x + 1\n')
+    assert code_of(base) == code_of("def f(x):\n    return x + 1\n")
+    assert code_of(base) != code_of('def f(x):\n    """Adds one."""\n    return x + 2\n')
+    assert code_of('X = "a"\n') != code_of('X = "b"\n')                 # a string that is code
+    assert code_of('class A:\n    """Doc."""\n') == code_of("class A:\n    pass\n")
