@@ -457,7 +457,7 @@ def _reduced() -> DSlateConfig:
       cube closest to the floor's colour (green);
     * 1,200 polish steps after the schedule (`train.polish_steps`): lr 2e-4, dVAE frozen,
       foreground weight 20, the mixture scored per slot (last item);
-    * the type/state split (issue 12; notebook 04 measures it): the state s is where the slot
+    * the type/state split (notebook 04 measures it): the state s is where the slot
       attends, its attention's centroid and spread (`slots.position_state`, state_dim 4, as
       in Invariant Slot Attention); the mixture decoder paints one look per slot from z alone
       (`mixture.appearance = "type"`); a detached head draws each slot's mask from s

@@ -99,7 +99,7 @@ def filmstrip(axes_row, frames, titles=None):
 
 
 # ---------------------------------------------------------------------- drawing helpers
-# (added for issue 11: figures that say what they show)
+# (figures that say what they show: arena positions drawn on the image)
 
 def arena_to_pixel(env, xy, z: float = 0.0) -> np.ndarray:
     """Arena coordinates (..., 2) in metres -> image coordinates (..., 2) = (column, row) in

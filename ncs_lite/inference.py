@@ -37,7 +37,7 @@ SHIPPED_POLICIES = {"bc": ASSETS / "bc_block_rearrange_reduced.pt", "iql": ASSET
 _SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT_GRAPH,
                    ("ncs-oracle", "mask"): SHIPPED_ORACLE_GRAPH, ("ncs-oracle", "slot"): SHIPPED_POSITION_GRAPH,
                    ("nf", "mask"): SHIPPED_NF_GRAPH, ("nf-oracle", "mask"): SHIPPED_NF_ORACLE_GRAPH}
-# robogym-rearrange (issue 14): its `reduced` checkpoint, its graph on slot states (Table 3's
+# robogym-rearrange: its `reduced` checkpoint, its graph on slot states (Table 3's
 # second column, 45 nodes) and the position oracle's graph; the README lists the commands
 ROBOGYM_CHECKPOINT = ASSETS / "dslate_robogym_rearrange_reduced.pt"
 ROBOGYM_SLOT_GRAPH = ASSETS / "graph_robogym_rearrange_reduced_slot.pt"

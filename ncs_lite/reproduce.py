@@ -108,7 +108,7 @@ def _stage(path: Path, key: dict, compute):
 
 
 # ---------------------------------------------------------------------- seeds
-# factorization_scores' measures that the seeds table reports (issue 12's targets)
+# factorization_scores' measures that the seeds table reports
 SPLIT_METRICS = ("type_invariance", "identity_from_z", "position_r2_from_s", "position_r2_from_z",
                  "own_slot_share", "position_r2_own_slots",
                  "moved_slot_accuracy", "moved_misses_objectless", "predicted_position_r2",

@@ -1,4 +1,4 @@
-"""Classroom exercises (issue 15): the student copies are current, every stub raises
+"""Classroom exercises: the student copies are current, every stub raises
 NotImplementedError with its hint, the masters' solutions pass their self-checks, a wrong
 answer fails its self-check, and a student copy runs until its first exercise and stops there.
 

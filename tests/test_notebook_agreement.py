@@ -1,4 +1,4 @@
-"""Figures of what the agent did draw what the agent used (notebooks 05-06, issue 11).
+"""Figures of what the agent did draw what the agent used (notebooks 05-06).
 
 The agent records its decision in `NCSAgent.last`; notebook 06 draws `aligned_masks(last)`
 and the recorded distances and probabilities. These tests run the learned agent (shipped

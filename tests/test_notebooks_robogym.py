@@ -1,4 +1,4 @@
-"""Notebooks 04-07 on robogym-rearrange (issue 14): the library helpers they read the env
+"""Notebooks 04-07 on robogym-rearrange: the library helpers they read the env
 through, and each notebook run end to end with `env = "robogym-rearrange"` at `ci`.
 
 nbmake runs every notebook at its default env (block-rearrange); papermill injects the
