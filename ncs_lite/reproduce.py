@@ -239,7 +239,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 row[f"ncs{suffix}_{k}"] = s["success"]
                 row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
                 row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
-                row[f"noop_fraction{suffix}_{k}"] = round(s["noop_fraction"], 3)
+                for share in ("noop", "placed", "picked_nothing", "refused"):
+                    row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
         rows.append(row)
         print(json.dumps(row), flush=True)
     if not block:     # the references of the same tasks, which no training seed changes

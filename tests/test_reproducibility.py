@@ -454,3 +454,18 @@ def test_code_keys_ignore_prose_but_not_code():
     assert code_of(base) != code_of('def f(x):\n    """Adds one."""\n    return x + 2\n')
     assert code_of('X = "a"\n') != code_of('X = "b"\n')                 # a string that is code
     assert code_of('class A:\n    """Doc."""\n') == code_of("class A:\n    pass\n")
+
+
+def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipped_seed(tmp_path):
+    """`reproduce seeds --env robogym-rearrange` at `ci`: slot states only (Table 3), 4-7
+    objects, the oracle and Random on the same tasks, and the seed its rule ships."""
+    from ncs_lite.reproduce import seeds_table
+
+    out = seeds_table("ci", seeds=(0,), runs=tmp_path / "runs", episodes=1, images=4,
+                      env="robogym-rearrange", out_dir=tmp_path / "tables", allow_dirty=True)
+    row = out["rows"][0]
+    for k in (4, 5, 6, 7):
+        assert {f"ncs_{k}", f"ncs_oracle_{k}", f"random_{k}", f"placed_fraction_{k}"} <= set(row)
+    assert "ncs_slot_4" not in row and "heldout_error" in row and out["shipped_seed"] == 0
+    saved = json.loads((tmp_path / "tables" / "seeds_robogym_ci.json").read_text())
+    assert saved["env"] == "robogym-rearrange" and saved["clusters"] == 8 and saved["shipped_seed"] == 0
