@@ -14,23 +14,30 @@ From a buffer of transitions (entity states before and after, and the action tak
 How an edge becomes an action (`edge_action`, a decision the paper leaves open):
 - "most_common" (block-rearrange): the edge's most frequent action. States are grid
   cells, so every action on an edge picks the same cube and puts it in the same cell.
-- "nearest" (robogym-rearrange): positions are continuous and a node spans several
-  centimetres, more than the 0.05 pick and goal thresholds, so an arbitrary action of the
-  edge usually picks nothing or places wide. The graph keeps each transition's two entity
-  states with its action (self-loops too: a move within one node is a move), and the
-  action taken is that of the edge's transition whose start and end states are nearest
-  (bind metric, summed) to the current and goal states; `rank` > 0 takes the next nearest,
-  for a retry after a move that changed nothing. With slot states the distances are taken in
-  the subspace the buffer's moves span (`moved_subspace`: the principal directions of the
-  examples' displacements s_{t+1} - s_t that hold `ncs.nearest_variance` of their energy).
-  A learned s holds a little more than where the object is (robogym-rearrange's `reduced`
-  s: 4 numbers, of whose displacement energy 98 % lies in two directions), and those
-  remaining directions, though small, are as large as the 5 cm the pick allows: on the
-  whole s the chosen transition started more than 5 cm from the object in 43 % of the
-  learned agent's steps, and 4-object success was 0.49; on the two directions, 0.63
-  (100 tasks). The position oracle's states (x, y, z) move in x and y only: its
-  comparisons now leave out z, the object's resting height, which depends on its shape
-  (7-object success 0.72 -> 0.82, 4 objects 0.97 -> 0.98).
+- With continuous positions (robogym-rearrange) a node spans several centimetres, more
+  than the 0.05 m pick and goal thresholds, so an arbitrary action of the edge usually picks
+  nothing or places wide. The graph then keeps each transition's two entity states with its
+  action (self-loops too: a move within one node is a move), and the action is realised from
+  the current state and the goal state:
+  - "nearest": the action of the edge's transition whose start and end states are nearest
+    (bind metric, summed) to the current and goal states;
+  - "compose": the pick of the transition leaving the source node whose start is nearest the
+    current state, and the place of the transition entering the destination node whose end
+    is nearest the goal state (two transitions, so a pick and a place each find their best
+    exemplar);
+  - "readout": the pick point read from the current state and the place point read from the
+    goal state by two quadratic least-squares read-outs fitted on every kept transition
+    (start state -> its pick point, end state -> its place point): the transitions label the
+    states with where their objects were, and the read-out interpolates between them.
+  The edge must exist in every mode: the graph still decides which moves are possible. `rank`
+  > 0 retries after a move that changed nothing with the next nearest transition(s)
+  ("readout" retries with "compose"'s nearest, then the next). With slot states, distances
+  are taken in the subspace the buffer's moves span (`moved_subspace`: the principal
+  directions of the displacements s_{t+1} - s_t that hold `ncs.nearest_variance` of their
+  energy): a learned s holds a little more than where the object is, and those other
+  directions, though small, are as large as the pick threshold. The position oracle's
+  states (x, y, z) move in x and y only, so its comparisons leave out z, the object's
+  resting height. docs/HISTORY.md gives the step outcomes of each mode.
 
 Shapes: M transitions, K entities per frame, D state features, N nodes.
 """

@@ -1,0 +1,692 @@
+"""The README's generated blocks and docs/results.md, written from the committed tables.
+
+Every number the README and docs/results.md give comes from a file a command wrote:
+`figures/tables/**/*.json` (`python -m ncs_lite reproduce TABLE`) and
+`figures/notebook_times.json` (`make reproduce`). This module renders them; nothing is
+typed by hand, so a table that changes changes the text with it.
+
+    python -m ncs_lite.docs            # rewrite the README's blocks and docs/results.md
+    python -m ncs_lite.docs --check    # compare only; exit 1 naming each stale file
+
+The README holds three blocks, each between two marker lines (`<!-- NAME:begin -->` and
+`<!-- NAME:end -->`): `results` (the headline numbers of both environments and the main
+comparison), `times` (what `make reproduce` takes) and `notebooks` (one line per notebook
+with its measured time). A table that is absent (one still being computed) is left out;
+a table of an unknown shape is rendered generically. Each table's command is rebuilt from
+its own metadata (`table_command`). tests/test_docs.py fails when the committed text
+differs from what this module writes.
+
+Why generated: a number copied by hand goes stale without anyone noticing (docs/HISTORY.md
+keeps the dated measurements that are not regenerated).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import statistics
+import sys
+from pathlib import Path
+
+from .utils import REPO_DIR, atomic_write_text
+
+__all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "readme_blocks",
+           "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
+
+BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
+# `reproduce`'s defaults (ncs_lite/reproduce.py, `add_subcommand` and `seeds_table`): a
+# command names an argument only where its table differs from them
+DEFAULT_EPISODES = 100
+DEFAULT_OBJECTS = {"block-rearrange": [4, 7], "robogym-rearrange": [4, 5, 6, 7]}
+DEFAULT_PRESET = "reduced"
+SHIPPED_ASSETS = "ncs_lite/assets/"    # a table read from a shipped asset used the command's default
+# NCSConfig fields that `reproduce seeds` sets from the env (Tables 3-4): never overrides
+ENV_NCS_FIELDS = ("clusters", "edge_action", "state")
+
+# --------------------------------------------------------------------- what a column means
+# (pattern over a column name, label, kind, which direction is better: "high", "low" or None).
+# Only columns that match are rendered ("columns of interest"); the order here is the order
+# of the rows. {state} is the table's NCS state ("masks" or "slot states"); {k} an object
+# count; {r} a number of slot-attention starts.
+_SPLIT = {
+    "type_invariance": ("type invariance: z's change across a move / distance between two objects' z", "num3", "low"),
+    "identity_from_z": ("identity (colour) from z, nearest centroid", "num2", "high"),
+    "position_r2_from_s": ("position R² from s", "num2", "high"),
+    "position_r2_from_z": ("position R² from z", "num2", "low"),
+    "own_slot_share": ("objects with a slot of their own", "num2", "high"),
+    "position_r2_own_slots": ("position R² from s, objects with a slot of their own", "num2", "high"),
+    "moved_slot_accuracy": ("dynamics: largest predicted change on the moved object's slot", "num2", "high"),
+    "moved_misses_objectless": ("dynamics: share of its misses on a slot holding no object", "num2", None),
+    "predicted_position_r2": ("dynamics: R² of the next position from the predicted s", "num2", "high"),
+    "no_change_position_r2": ("... the same R² predicting no change (reference)", "num2", None),
+    "render_fg_error": ("image drawn from the slots alone, error on the objects", "num2", "low"),
+    "floor_fg_error": ("... the empty floor's error on the objects (reference)", "num2", None),
+    "predicted_render_error": ("image drawn from predicted slots, error on the moved object", "num2", "low"),
+    "no_change_error": ("... the current frame's error on the moved object (reference)", "num2", None),
+    "dvae_floor_max": ("dVAE: largest share of a colour's pixels coded as floor", "num3", "low"),
+}
+COLUMNS = [
+    (r"ncs_(?P<k>\d+)", "`ncs` on {state}, {k} objects", "rate", "high"),
+    (r"ncs_slot_(?P<k>\d+)", "`ncs` on slot states, {k} objects", "rate", "high"),
+    (r"ncs_oracle_(?P<k>\d+)", "`ncs-oracle` (ground truth), {k} objects", "rate", "high"),
+    (r"random_(?P<k>\d+)", "`random`, {k} objects", "rate", None),
+    (r"fg_ari_(?P<k>\d+)_r(?P<r>\d+)", "fg-ARI, {k} objects, {starts}", "num2", "high"),
+    (r"absorbed_(?P<k>\d+)_r(?P<r>\d+)", "objects absorbed into the floor's slot, {k} objects, {starts}", "pct", "low"),
+    (r"shared_(?P<k>\d+)_r(?P<r>\d+)", "objects sharing a slot with another, {k} objects, {starts}", "pct", "low"),
+    *[(rf"split_{m}", f"{label}, one start", kind, better) for m, (label, kind, better) in _SPLIT.items()],
+    *[(rf"split_r(?P<r>\d+)_{m}", f"{label}, {{starts}}", kind, better) for m, (label, kind, better) in _SPLIT.items()],
+    (r"random_fraction_(?P<k>\d+)", "random fallback actions, `ncs` on {state}, {k} objects", "pct", "low"),
+    (r"random_fraction_slot_(?P<k>\d+)", "random fallback actions, `ncs` on slot states, {k} objects", "pct", "low"),
+    (r"ncs_random_fraction_(?P<k>\d+)", "random fallback actions, `ncs`, {k} objects", "pct", "low"),
+    (r"noop_fraction_(?P<k>\d+)", "actions that changed nothing, `ncs` on {state}, {k} objects", "pct", "low"),
+    (r"noop_fraction_slot_(?P<k>\d+)", "actions that changed nothing, `ncs` on slot states, {k} objects", "pct", "low"),
+    (r"ncs_noop_fraction_(?P<k>\d+)", "actions that changed nothing, `ncs`, {k} objects", "pct", "low"),
+    (r"placed_fraction_(?P<k>\d+)", "actions that put a constrained object at its goal, `ncs` on {state}, {k} objects",
+     "pct", "high"),
+    (r"placed_fraction_slot_(?P<k>\d+)", "actions that put a constrained object at its goal, `ncs` on slot states, "
+     "{k} objects", "pct", "high"),
+    (r"picked_nothing_fraction_(?P<k>\d+)", "actions whose pick found no object, `ncs` on {state}, {k} objects",
+     "pct", "low"),
+    (r"picked_nothing_fraction_slot_(?P<k>\d+)",
+     "actions whose pick found no object, `ncs` on slot states, {k} objects",
+     "pct", "low"),
+    (r"refused_fraction_(?P<k>\d+)", "actions whose place was refused, `ncs` on {state}, {k} objects", "pct", "low"),
+    (r"refused_fraction_slot_(?P<k>\d+)", "actions whose place was refused, `ncs` on slot states, {k} objects",
+     "pct", "low"),
+    (r"edges", "graph edges", "int", None),
+    (r"graph_edges", "graph edges, {state}", "int", None),
+    (r"graph_edges_slot", "graph edges, slot states", "int", None),
+    (r"oracle_graph_edges", "graph edges, the oracle's graph", "int", None),
+    (r"coverage", "isolate coverage, {state}", "num2", "high"),
+    (r"coverage_slot", "isolate coverage, slot states", "num2", "high"),
+    (r"heldout_error", "held-out reconstruction error (picks the shipped seed)", "sig3", "low"),
+    (r"train_minutes", "training minutes", "min", "low"),
+]
+_COLUMNS = [(re.compile(p + r"\Z"), label, kind, better) for p, label, kind, better in COLUMNS]
+STATE_NAMES = {"mask": "masks", "slot": "slot states"}
+
+
+def _column(name: str):
+    """(order, numbers, label template, groups, kind, better) of a column name, or None."""
+    for order, (pattern, label, kind, better) in enumerate(_COLUMNS):
+        m = pattern.match(name)
+        if m:
+            numbers = tuple(int(v) for v in m.groupdict().values() if v is not None)
+            return order, numbers, label, m.groupdict(), kind, better
+    return None
+
+
+def _label(template: str, groups: dict, state: str) -> str:
+    r = groups.get("r")
+    starts = "" if r is None else ("one start" if r == "1" else f"{r} restarts")
+    return template.format(k=groups.get("k"), starts=starts, state=state)
+
+
+# --------------------------------------------------------------------------- numbers
+def format_value(value, kind: str = "num2") -> str:
+    """One number as the docs print it: rates and scores to 2 decimals (`num3`: 3), shares
+    of actions or objects as percentages, counts as integers, minutes to 0.1; a missing or
+    non-finite value as "n/a"."""
+    if value is None or isinstance(value, str):
+        return "n/a" if value in (None, "") else str(value)
+    v = float(value)
+    if not math.isfinite(v):
+        return "n/a"
+    if kind == "pct":
+        return f"{100 * v:.{_pct_digits(v)}f} %"
+    if kind == "int":
+        return f"{int(round(v)):,}"
+    if kind == "min":
+        return f"{v:.1f} min"
+    if kind == "sig3":
+        return f"{v:.3g}"
+    return f"{v:.{3 if kind == 'num3' else 2}f}"
+
+
+def _pct_digits(v: float) -> int:
+    return 1 if 0 < abs(v) < 0.1 else 0
+
+
+def format_mean_sd(mean, sd, kind: str = "num2") -> str:
+    """"0.96 ± 0.04" in the column's format (percentages: "4 ± 3 %")."""
+    if mean is None or not math.isfinite(float(mean)):
+        return "n/a"
+    if sd is None or not math.isfinite(float(sd)):
+        return format_value(mean, kind)
+    if kind == "pct":
+        d = _pct_digits(float(mean))
+        return f"{100 * mean:.{d}f} ± {100 * sd:.{d}f} %"
+    if kind == "min":
+        return f"{mean:.1f} ± {sd:.1f} min"
+    return f"{format_value(mean, kind)} ± {format_value(sd, kind)}"
+
+
+def format_seconds(seconds: float) -> str:
+    """A wall time: "7 s" under a minute, else "3.8 min"."""
+    return f"{seconds:.0f} s" if seconds < 60 else f"{seconds / 60:.1f} min"
+
+
+def _cell(row: dict, column: str, kind: str) -> str:
+    """A row's value, with its 95 % interval (`<column>_ci`) where the table gives one."""
+    text = format_value(row.get(column), kind)
+    ci = row.get(f"{column}_ci")
+    return f"{text} {ci}" if ci and text != "n/a" else text
+
+
+def _summary(table: dict, column: str) -> dict | None:
+    """{"mean", "sd", "n"} of a column over the table's rows (seeds): the table's own
+    `summary` where it has the column, else computed the same way (sd with n - 1)."""
+    given = (table.get("summary") or {}).get(column)
+    if given is not None:
+        return given
+    values = [float(r[column]) for r in table["rows"]
+              if isinstance(r.get(column), (int, float)) and math.isfinite(float(r[column]))]
+    if not values:
+        return None
+    return {"mean": statistics.fmean(values), "sd": statistics.stdev(values) if len(values) > 1 else float("nan"),
+            "n": len(values)}
+
+
+def _worst(table: dict, column: str, better: str | None, kind: str) -> str:
+    """The worst seed's value and which seed: the lowest where higher is better, the highest
+    where lower is."""
+    if better is None:
+        return ""
+    rows = [r for r in table["rows"] if isinstance(r.get(column), (int, float))]
+    if not rows:
+        return ""
+    pick = min if better == "high" else max
+    row = pick(rows, key=lambda r: r[column])
+    who = f"seed {row['seed']}" if "seed" in row else f"row {table['rows'].index(row)}"
+    return f"{format_value(row[column], kind)} ({who})"
+
+
+def _constant(table: dict, column: str) -> bool:
+    """Whether every row has the same value (e.g. the oracle's success, which no training
+    seed changes)."""
+    values = {json.dumps(r.get(column)) for r in table["rows"]}
+    return len(values) == 1
+
+
+def _state(table: dict) -> str:
+    return STATE_NAMES.get((table.get("ncs") or {}).get("state"), "its states")
+
+
+def _env(table: dict) -> str:
+    return table.get("env") or "block-rearrange"
+
+
+# --------------------------------------------------------------------------- commands
+def _is_seeds(name: str) -> bool:
+    return name.startswith("seeds_")
+
+
+def _ncs_overrides(table: dict) -> list[str]:
+    """The `--set ncs.*` a seeds table was read with: its `ncs` section against NCSConfig's
+    defaults (tables written before `ncs_overrides` was recorded hold only the section)."""
+    from .config import NCSConfig
+
+    default = NCSConfig()
+    out = []
+    for field, value in sorted((table.get("ncs") or {}).items()):
+        if field in ENV_NCS_FIELDS or not hasattr(default, field):
+            continue
+        if value != getattr(default, field):
+            out.append(f"ncs.{field}={'none' if value is None else value}")
+    recorded = [o for o in table.get("ncs_overrides") or [] if o not in out]
+    return out + recorded
+
+
+def table_command(path: str, table: dict) -> str:
+    """The command that regenerates a table, rebuilt from the table's metadata. `path` is
+    the table's JSON file relative to figures/tables/ (a table in a subfolder was written
+    with `--out-dir`)."""
+    name = table.get("table") or Path(path).stem
+    folder = Path(path).parent.as_posix()
+    out_dir = [] if folder in ("", ".") else ["--out-dir", f"figures/tables/{folder}"]
+    env = _env(table)
+    preset = table.get("preset", DEFAULT_PRESET)
+    args: list[str]
+    if _is_seeds(name):
+        args = ["reproduce", "seeds", "--seeds", *map(str, table.get("seeds") or [0, 1, 2])]
+        if env != "block-rearrange":
+            args += ["--env", env]
+        if preset != DEFAULT_PRESET:
+            args += ["--preset", preset]
+        objects = table.get("objects")
+        if objects and list(objects) != DEFAULT_OBJECTS.get(env):
+            args += ["--objects", *map(str, objects)]
+        if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
+            args += ["--episodes", str(table["episodes"])]
+        recipe = list(table.get("overrides") or [])
+        for override in recipe + _ncs_overrides(table):
+            args += ["--set", override]
+        if recipe:        # another recipe trains into runs of its own (`--runs`)
+            args += ["--runs", f".cache/seeds-{Path(folder).name or 'variant'}"]
+    elif name.startswith("baselines_"):
+        args = ["reproduce", "baselines"]
+        if env != "block-rearrange":
+            args += ["--env", env]
+        if preset != DEFAULT_PRESET:
+            args += ["--preset", preset]
+        args += ["--episodes", str(table.get("episodes")), "--mpc-episodes", str(table.get("mpc_episodes"))]
+    elif name == "clusters":
+        args = ["reproduce", "clusters"]
+        if not str(table.get("checkpoint", SHIPPED_ASSETS)).startswith(SHIPPED_ASSETS):
+            args += ["--checkpoint", table["checkpoint"]]
+        if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
+            args += ["--episodes", str(table["episodes"])]
+    elif name.startswith("robogym_"):
+        args = ["reproduce", "robogym"]
+        for key, flag in (("checkpoint", "--checkpoint"), ("graph", "--graph"), ("oracle_graph", "--oracle-graph")):
+            if not str(table.get(key, SHIPPED_ASSETS)).startswith(SHIPPED_ASSETS):
+                args += [flag, table[key]]
+        if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
+            args += ["--episodes", str(table["episodes"])]
+        objects = table.get("objects")
+        if objects and list(objects) != DEFAULT_OBJECTS["robogym-rearrange"]:
+            args += ["--objects", *map(str, objects)]
+    else:
+        return "(no command recorded)"
+    return " ".join(["python -m ncs_lite", *args, *out_dir])
+
+
+# --------------------------------------------------------------------------- one table
+def _markdown(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(cells) + " |" for cells in rows]
+
+
+def _measure_columns(table: dict) -> list[tuple]:
+    """(column, label, kind, better) of the table's columns of interest, in COLUMNS order."""
+    state = _state(table)
+    found = []
+    for column in table["rows"][0]:
+        info = _column(column)
+        if info is not None:
+            order, numbers, template, groups, kind, better = info
+            found.append(((order, numbers), column, _label(template, groups, state), kind, better))
+    return [f[1:] for f in sorted(found)]
+
+
+def _render_measures(table: dict) -> list[str]:
+    """Rows are measures; columns the table's rows (seeds), then mean ± sd and the worst seed."""
+    rows = table["rows"]
+    columns = _measure_columns(table)
+    if len(rows) == 1:
+        return _markdown(["measure", "value"], [[label, _cell(rows[0], c, kind)] for c, label, kind, _ in columns])
+    names = [f"seed {r['seed']}" if "seed" in r else f"row {i}" for i, r in enumerate(rows)]
+    n = len(rows)
+    header = ["measure", *names, f"mean ± sd (n = {n})", "worst seed"]
+    body = []
+    for column, label, kind, better in columns:
+        s = _summary(table, column)
+        spread = format_mean_sd(s["mean"], s["sd"], kind) if s else ""
+        worst = "" if _constant(table, column) else _worst(table, column, better, kind)
+        body.append([label, *(_cell(r, column, kind) for r in rows), spread, worst])
+    shipped = table.get("shipped_seed")
+    if shipped is not None:
+        body.append(["the shipped seed (" + str(table.get("shipped_rule", "its rule")) + ")",
+                     *["**shipped**" if r.get("seed") == shipped else "" for r in rows], "", ""])
+    return _markdown(header, body)
+
+
+def _render_sweep(table: dict) -> list[str]:
+    """One row per point of a sweep (e.g. the number of graph nodes)."""
+    rows = table["rows"]
+    key = next(iter(rows[0]))
+    columns = sorted((c for c in _measure_columns(table) if c[0] != key), key=lambda c: c[2] != "int")
+    header = [key.replace("_", " "), *(label for _, label, _, _ in columns)]
+    body = [[format_value(r[key], "int"), *(_cell(r, c, kind) for c, _, kind, _ in columns)] for r in rows]
+    return _markdown(header, body)
+
+
+def _comparison_cell(row: dict, episodes) -> str:
+    text = f"{format_value(row.get('success'), 'rate')} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
+    notes = []
+    share = row.get("random_fraction")
+    if isinstance(share, (int, float)) and share > 0:
+        notes.append(f"{format_value(share, 'pct')} random")
+    if episodes is not None and row.get("episodes") not in (None, episodes):
+        notes.append(f"n = {row['episodes']}")
+    return text + (f" ({', '.join(notes)})" if notes else "")
+
+
+def _render_comparison(table: dict, goals=None, notes: bool = True) -> list[str]:
+    """Methods x object counts, one markdown table per goal kind: success [95 % interval]."""
+    rows = table["rows"]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    counts = sorted({r["num_objects"] for r in rows})
+    lines = []
+    for goal in goals or list(dict.fromkeys(r["goal"] for r in rows)):
+        cells = {(r["method"], r["num_objects"]): r for r in rows if r["goal"] == goal}
+        if not cells:
+            continue
+        if len(goals or ()) != 1:
+            lines += [f"*{goal} goals*", ""]
+        body = [[f"`{m}`", *(_comparison_cell(cells[m, k], table.get("episodes")) if (m, k) in cells else "–"
+                             for k in counts)] for m in methods]
+        lines += _markdown(["method", *(f"{k} objects" for k in counts)], body) + [""]
+    if notes:
+        lines.append("Success with its 95 % Wilson interval; in brackets the share of random actions where it is "
+                     "not 0, and the number of tasks where a method ran on fewer.")
+    return lines[:-1] if lines and lines[-1] == "" else lines
+
+
+def _kind(table: dict) -> str:
+    rows = table.get("rows") or []
+    if not rows:
+        return "empty"
+    if {"method", "goal", "num_objects", "success"} <= set(rows[0]):
+        return "comparison"
+    if "seed" in rows[0] or len(rows) == 1:
+        return "measures"
+    return "sweep"
+
+
+def _describe(path: str, table: dict) -> str:
+    """One sentence on what a table measures, from its name and folder."""
+    name = table.get("table") or Path(path).stem
+    folder = Path(path).parent.as_posix()
+    if name.startswith("baselines_"):
+        what = "The main comparison: every method on the same seeded tasks, complete and partial goals."
+    elif name == "clusters":
+        what = "NCS success against the number of graph nodes (the paper's Fig. 9, left) on the shipped checkpoint."
+    elif name.startswith("robogym_"):
+        what = "The shipped robogym-rearrange checkpoint and graphs measured: the type/state split, fg-ARI and success."
+    elif _is_seeds(name):
+        what = ("The recipe trained once per seed, each seed's split, segmentation and NCS success; mean ± sd "
+                "over seeds and the worst seed.")
+    else:
+        what = "A table of `figures/tables/`."
+    if folder.startswith("variants"):
+        what += " A variant, not adopted: its overrides are in the command."
+    elif folder == "shipped":
+        what += " The shipped checkpoint alone (its run folder's seed 0)."
+    return what
+
+
+def render_table(path: str, table: dict) -> str:
+    """docs/results.md's section of one table: title, command, provenance, the table."""
+    name = table.get("table") or Path(path).stem
+    lines = [f"## `{path}`", "", _describe(path, table), "", f"Command: `{table_command(path, table)}`", ""]
+    facts = [f"environment {_env(table)}"]
+    if table.get("preset"):
+        facts.append(f"preset `{table['preset']}`")
+    if table.get("seeds"):
+        seeds = list(table["seeds"])
+        facts.append(("training seed " if len(seeds) == 1 else "training seeds ") + ", ".join(map(str, seeds)))
+    if table.get("episodes"):
+        mpc = table.get("mpc_episodes")
+        facts.append(f"{table['episodes']} seeded tasks per cell" + (f" (`mpc`: {mpc})" if mpc else ""))
+    ncs = table.get("ncs") or {}
+    if ncs.get("clusters"):
+        facts.append(f"{ncs['clusters']} graph nodes" if name != "clusters" else "nodes swept")
+    overrides = list(table.get("overrides") or []) + (_ncs_overrides(table) if _is_seeds(name) else [])
+    if overrides:
+        facts.append("overrides " + ", ".join(f"`{o}`" for o in overrides))
+    commit = table.get("commit")
+    if commit:
+        facts.append(f"written at commit {commit}" + (" from a tree with uncommitted changes"
+                                                      if table.get("dirty") else " (clean tree)"))
+    lines += ["; ".join(facts) + ".", ""]
+    kind = _kind(table)
+    if kind == "comparison":
+        lines += _render_comparison(table)
+    elif kind == "measures":
+        lines += _render_measures(table)
+    elif kind == "sweep":
+        lines += _render_sweep(table)
+    else:
+        lines.append("(no rows)")
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- inputs
+def load_tables(folder: Path) -> dict[str, dict]:
+    """Every table JSON under `folder` (figures/tables/), keyed by its path relative to it
+    ("seeds_reduced.json", "variants/restarts_64/seeds_reduced.json"); a JSON that is not a
+    table (no "rows") is skipped. Top-level tables first, then subfolders, each sorted."""
+    found = {}
+    for path in sorted(Path(folder).rglob("*.json"), key=lambda p: (len(p.relative_to(folder).parts), str(p))):
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(data, dict) and isinstance(data.get("rows"), list):
+            found[path.relative_to(folder).as_posix()] = data
+    return found
+
+
+def load_times(path: Path) -> dict:
+    """figures/notebook_times.json ({"seconds": {notebook: s}, "commit", ...}), or {}."""
+    path = Path(path)
+    return json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+
+
+def notebook_titles(folder: Path) -> dict[str, str]:
+    """{"00_overview": "Neural Constraint Satisfaction: an overview", ...}: each notebook's
+    title, the first line of its first markdown cell without "# NN ·"."""
+    titles = {}
+    for path in sorted(Path(folder).glob("[0-9][0-9]_*.ipynb")):
+        cells = json.loads(path.read_text(encoding="utf-8")).get("cells", [])
+        first = next((c for c in cells if c.get("cell_type") == "markdown"), None)
+        text = "".join(first["source"]) if first else ""
+        line = text.strip().splitlines()[0] if text.strip() else path.stem
+        titles[path.stem] = re.sub(r"^#+\s*\d+\s*[·:.-]?\s*", "", line).strip()
+    return titles
+
+
+# --------------------------------------------------------------------------- the README
+def _top(tables: dict, prefix: str) -> list[tuple[str, dict]]:
+    return [(p, t) for p, t in tables.items() if "/" not in p and (t.get("table") or Path(p).stem).startswith(prefix)]
+
+
+def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
+    """(environment, label, {objects: cell}, command) of the headline numbers: each
+    environment's success over training seeds (mean ± sd and the worst seed; a value that
+    every seed shares, such as the oracle's, with its interval), or, for an environment
+    without a seeds table yet, one training seed's table (`reproduce robogym`)."""
+    seeded = {_env(t) for _, t in _top(tables, "seeds_")}
+    sources = _top(tables, "seeds_") + [(p, t) for p, t in _top(tables, "robogym_") if _env(t) not in seeded]
+    found: dict[tuple[str, str], tuple[dict, str]] = {}
+    for path, table in sources:
+        rows = table["rows"]
+        for column, label, kind, better in _measure_columns(table):
+            numbers = _column(column)[1]
+            if kind != "rate" or not numbers:
+                continue
+            label = label.rsplit(",", 1)[0]           # "`ncs` on masks, 4 objects" -> "`ncs` on masks"
+            learned = label.startswith("`ncs` on")   # a trained model's success; the others are references
+            if learned:
+                label += f", {len(rows)} training seeds" if len(rows) > 1 else ", one training seed"
+            if len(rows) > 1 and (learned or not _constant(table, column)):
+                s = _summary(table, column)
+                worst = _worst(table, column, better, kind).split(" (")[0]
+                cell = f"{format_mean_sd(s['mean'], s['sd'], kind)} ({worst})"
+            else:
+                cell = _cell(rows[0], column, kind)
+            cells, _ = found.setdefault((_env(table), label), ({}, table_command(path, table)))
+            cells[numbers[0]] = cell
+    order = {e: i for i, e in enumerate(BLOCK_ENVS)}
+    keys = sorted(found, key=lambda key: order.get(key[0], len(order)))     # stable: table order within an env
+    return [(env, label, *found[env, label]) for env, label in keys]
+
+
+def render_results_block(tables: dict) -> str:
+    """The README's `results` block: the headline table, the main comparison on each
+    environment (complete goals) and one provenance sentence."""
+    lines = []
+    head = _headline_rows(tables)
+    if head:
+        counts = sorted({k for _, _, cells, _ in head for k in cells})
+        from .envs.block_rearrange import BlockRearrangeConfig     # the horizon every table's tasks use
+
+        horizon = BlockRearrangeConfig.horizon_multiplier
+        lines += [f"Share of seeded tasks solved (complete goals, horizon {horizon:g}x the fewest moves). Over "
+                  "training seeds: mean ± sd (worst seed); otherwise the value with its 95 % Wilson interval.", ""]
+        body = [[f"{env}: {label}", *(cells.get(k, "–") for k in counts), f"`{command}`"]
+                for env, label, cells, command in head]
+        lines += _markdown(["result", *(f"{k} objects" for k in counts), "written by"], body) + [""]
+    for path, table in _top(tables, "baselines_"):
+        mpc = table.get("mpc_episodes")
+        lines += [f"**Main comparison, {_env(table)}**, complete goals, {table.get('episodes')} tasks per cell"
+                  + (f" (`mpc`: {mpc})" if mpc else "") + f": `{table_command(path, table)}` "
+                  "(partial goals: [docs/results.md](docs/results.md)).", ""]
+        lines += _render_comparison(table, goals=["complete"], notes=False) + [""]
+    if lines:
+        lines.append("Success with its 95 % Wilson interval; in brackets the share of random actions where it is "
+                     "not 0, and the number of tasks where a method ran on fewer.")
+        lines.append("")
+    used = _top(tables, "seeds_") + _top(tables, "baselines_") + [
+        (p, t) for p, t in _top(tables, "robogym_") if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}]
+    stamps = [f"`{Path(p).stem}` at {t.get('commit', 'an unrecorded commit')}" + (" (dirty)" if t.get("dirty") else "")
+              for p, t in used]
+    if stamps:
+        lines.append("Provenance: " + ", ".join(stamps) + "; every table with its inputs and parameters in "
+                     "[docs/results.md](docs/results.md).")
+    else:
+        lines.append("No tables yet: `python -m ncs_lite reproduce TABLE` writes them to `figures/tables/`.")
+    return "\n".join(lines)
+
+
+def _split_times(times: dict) -> dict[str, dict[str, float]]:
+    """{notebook: {env: seconds}} from notebook_times.json's "<name>" / "<name>_robogym"."""
+    out: dict[str, dict[str, float]] = {}
+    for key, seconds in (times.get("seconds") or {}).items():
+        robogym = key.endswith("_robogym")
+        name, env = (key[:-len("_robogym")], "robogym-rearrange") if robogym else (key, "block-rearrange")
+        out.setdefault(name, {})[env] = float(seconds)
+    return out
+
+
+def render_times_block(times: dict) -> str:
+    """The README's `times` block: what `make reproduce` took, from figures/notebook_times.json."""
+    per = _split_times(times)
+    if not per:
+        return "`make reproduce` has not recorded its times yet (`figures/notebook_times.json`)."
+    by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in BLOCK_ENVS}
+    total = sum(by_env.values())
+    preset = times.get("preset", DEFAULT_PRESET)
+    return (f"The last `make reproduce` ran the notebooks in {format_seconds(total)} at `{preset}` "
+            f"({format_seconds(by_env['block-rearrange'])} on block-rearrange, "
+            f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange; "
+            "one thread per process, `figures/notebook_times.json`); creating `.venv` the first time comes "
+            "on top.")
+
+
+def render_notebooks_block(times: dict, titles: dict) -> str:
+    """The README's `notebooks` block: one line per notebook with its measured time."""
+    per = _split_times(times)
+    lines = []
+    for name, title in titles.items():
+        t = per.get(name, {})
+        took = format_seconds(t["block-rearrange"]) if "block-rearrange" in t else "not measured yet"
+        if "robogym-rearrange" in t:
+            took += f"; on robogym-rearrange {format_seconds(t['robogym-rearrange'])}"
+        lines.append(f"- [`{name}`](notebooks/{name}.ipynb): {title} ({took})")
+    return "\n".join(lines) if lines else "(no notebooks found)"
+
+
+def readme_blocks(tables: dict, times: dict, titles: dict) -> dict[str, str]:
+    """{block name: its content} for the README."""
+    return {"results": render_results_block(tables), "times": render_times_block(times),
+            "notebooks": render_notebooks_block(times, titles)}
+
+
+def replace_block(text: str, name: str, content: str, where: str = "README.md") -> str:
+    """`text` with the lines between `<!-- name:begin -->` and `<!-- name:end -->` replaced by
+    `content`; ValueError naming the file and the markers when they are missing or repeated."""
+    begin, end = f"<!-- {name}:begin -->", f"<!-- {name}:end -->"
+    if text.count(begin) != 1 or text.count(end) != 1 or text.index(begin) > text.index(end):
+        raise ValueError(f"{where} must hold the marker lines {begin} and {end} once each, in that order "
+                         "(the generated block goes between them)")
+    i, j = text.index(begin) + len(begin), text.index(end)
+    return text[:i] + "\n" + content.strip("\n") + "\n" + text[j:]
+
+
+# --------------------------------------------------------------------------- docs/results.md
+def render_results_md(tables: dict, times: dict, titles: dict) -> str:
+    """docs/results.md: the notebook times and every table under figures/tables/."""
+    lines = ["# Results", "",
+             "Generated by `python -m ncs_lite.docs` from `figures/tables/**/*.json` and "
+             "`figures/notebook_times.json`: do not edit by hand. Each section names the command that "
+             "regenerates its table, read from the table's own metadata; the dated measurements that no "
+             "command of this commit regenerates are in [HISTORY.md](HISTORY.md).", "",
+             "Tables in subfolders are kept beside the main ones: `shipped/` measures the shipped checkpoint "
+             "alone, `variants/` a recipe or reading that was tried and not adopted (its overrides in its "
+             "command).", ""]
+    lines += ["Contents: [notebook times](#notebook-times)"
+              + "".join(f", [`{p}`](#{_anchor(p)})" for p in tables), ""]
+    per = _split_times(times)
+    lines += ["## Notebook times", ""]
+    if per:
+        lines.append(f"`make reproduce` at `{times.get('preset', DEFAULT_PRESET)}`, one thread per process"
+                     + (f", commit {times['commit']}" if times.get("commit") else "")
+                     + (" (dirty tree)" if times.get("dirty") else "") + ":")
+        lines.append("")
+        body = [[f"`{name}`", *(format_seconds(t[e]) if e in t else "–" for e in BLOCK_ENVS)]
+                for name, t in per.items()]
+        body.append(["all", *(format_seconds(sum(t.get(e, 0.0) for t in per.values())) for e in BLOCK_ENVS)])
+        lines += _markdown(["notebook", *BLOCK_ENVS], body)
+    else:
+        lines.append("Not recorded yet (`make reproduce` writes `figures/notebook_times.json`).")
+    lines.append("")
+    for path, table in tables.items():
+        lines.append(render_table(path, table))
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading `` `heading` ``: lower case, punctuation but - and _ dropped."""
+    return re.sub(r"[^a-z0-9_\- ]", "", heading.lower()).replace(" ", "-")
+
+
+# --------------------------------------------------------------------------- writing
+def write_docs(check: bool = False, root: str | Path | None = None) -> list[str]:
+    """Write the README's blocks and docs/results.md from the tables under `root` (default:
+    the repo). With `check`, write nothing. Returns what differs from the committed text, one
+    entry per file ("README.md (blocks: results, times)", "docs/results.md"): empty when
+    everything is current."""
+    root = Path(root) if root is not None else REPO_DIR
+    tables = load_tables(root / "figures" / "tables")
+    times = load_times(root / "figures" / "notebook_times.json")
+    titles = notebook_titles(root / "notebooks")
+    readme_path = root / "README.md"
+    readme = readme_path.read_text(encoding="utf-8")
+    new_readme, stale_blocks = readme, []
+    for name, content in readme_blocks(tables, times, titles).items():
+        replaced = replace_block(new_readme, name, content)
+        if replaced != new_readme:
+            stale_blocks.append(name)
+        new_readme = replaced
+    results_path = root / "docs" / "results.md"
+    results = render_results_md(tables, times, titles)
+    stale = []
+    if stale_blocks:
+        stale.append(f"README.md (blocks: {', '.join(stale_blocks)})")
+    old_results = results_path.read_text(encoding="utf-8") if results_path.exists() else None
+    if old_results != results:
+        stale.append("docs/results.md")
+    if not check:
+        if stale_blocks:
+            atomic_write_text(readme_path, new_readme)
+        if old_results != results:
+            atomic_write_text(results_path, results)
+    return stale
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ncs_lite.docs", description=__doc__.split("\n")[0])
+    parser.add_argument("--check", action="store_true",
+                        help="compare only; exit 1 naming each file whose generated text is out of date")
+    args = parser.parse_args(argv)
+    stale = write_docs(check=args.check)
+    if args.check:
+        for entry in stale:
+            print(f"out of date: {entry} (run `python -m ncs_lite.docs`)")
+        return 1 if stale else 0
+    print("rewrote " + ", ".join(stale) if stale else "README.md and docs/results.md were current")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,151 @@
+"""The README's generated blocks and docs/results.md (`python -m ncs_lite.docs`): the committed
+text is what the generator writes from the committed tables, and the rendering of tiny made-up
+tables gives the numbers, intervals, worst seeds and commands expected."""
+from __future__ import annotations
+
+import copy
+import json
+import re
+
+import pytest
+
+from ncs_lite.docs import (format_mean_sd, format_value, render_results_block, render_table, replace_block,
+                           table_command, write_docs)
+from ncs_lite.utils import REPO_DIR
+
+# a seeds table of the shape `reproduce seeds --env robogym-rearrange` writes, two seeds
+SEEDS = {
+    "table": "seeds_robogym_reduced", "env": "robogym-rearrange", "preset": "reduced", "seeds": [0, 1],
+    "objects": [4, 5, 6, 7], "episodes": 100, "overrides": ["train.epochs=2"], "ncs_overrides": [],
+    "ncs": {"state": "slot", "clusters": 45, "edge_action": "nearest", "restarts": None, "align": "near"},
+    "commit": "abc1234", "dirty": False, "shipped_seed": 1, "shipped_rule": "the lowest held-out error",
+    "rows": [
+        {"seed": 0, "ncs_4": 0.9, "ncs_4_ci": "[0.83, 0.94]", "ncs_oracle_4": 0.98, "ncs_oracle_4_ci": "[0.93, 0.99]",
+         "heldout_error": 0.05, "pairs_4_r1": "red+pink 3", "random_fraction_4": 0.02},
+        {"seed": 1, "ncs_4": 0.7, "ncs_4_ci": "[0.61, 0.78]", "ncs_oracle_4": 0.98, "ncs_oracle_4_ci": "[0.93, 0.99]",
+         "heldout_error": 0.04, "pairs_4_r1": "", "random_fraction_4": 0.30},
+    ],
+    # the table's own summary is what is printed (here deliberately not what the rows give)
+    "summary": {"ncs_4": {"mean": 0.8, "sd": 0.25, "n": 2}, "ncs_oracle_4": {"mean": 0.98, "sd": 0.0, "n": 2}},
+}
+SINGLE = {"table": "robogym_reduced", "env": "robogym-rearrange", "episodes": 100, "objects": [4, 5, 6, 7],
+          "checkpoint": "ncs_lite/assets/dslate.pt", "commit": "def5678", "dirty": False,
+          "ncs": {"state": "slot"}, "rows": [{"ncs_4": 0.63, "ncs_4_ci": "[0.53, 0.72]"}]}
+COMPARISON = {
+    "table": "baselines_reduced", "env": "block-rearrange", "preset": "reduced", "episodes": 50, "mpc_episodes": 25,
+    "commit": "0123abc", "dirty": True,
+    "rows": [
+        {"method": "ncs", "goal": "complete", "num_objects": 4, "episodes": 50, "success": 0.98,
+         "ci_low": 0.895, "ci_high": 0.9965, "random_fraction": 0.07},
+        {"method": "mpc", "goal": "complete", "num_objects": 4, "episodes": 25, "success": 0.56,
+         "ci_low": 0.3704, "ci_high": 0.7330, "random_fraction": 0.0},
+        {"method": "ncs", "goal": "partial", "num_objects": 4, "episodes": 50, "success": 1.0,
+         "ci_low": 0.9287, "ci_high": 1.0, "random_fraction": 0.0},
+    ],
+}
+
+
+def test_committed_readme_block_and_results_are_generated():
+    stale = write_docs(check=True)
+    assert stale == [], f"out of date: {stale}; run `python -m ncs_lite.docs` and commit the result"
+
+
+def test_seeds_table_gives_each_seed_mean_sd_and_the_worst_seed():
+    text = render_table("seeds_robogym_reduced.json", SEEDS)
+    ncs = next(line for line in text.splitlines() if line.startswith("| `ncs` on slot states, 4 objects"))
+    assert ncs.split(" | ")[1:] == ["0.90 [0.83, 0.94]", "0.70 [0.61, 0.78]", "0.80 ± 0.25", "0.70 (seed 1) |"]
+    # lower is better for the held-out error: its worst seed is the highest; no summary: computed (sd n - 1)
+    held = next(line for line in text.splitlines() if line.startswith("| held-out reconstruction error"))
+    assert held.split(" | ")[1:] == ["0.05", "0.04", "0.045 ± 0.00707", "0.05 (seed 0) |"]
+    # the same for every seed (the oracle): no worst seed
+    oracle = next(line for line in text.splitlines() if line.startswith("| `ncs-oracle`"))
+    assert oracle.endswith("| 0.98 ± 0.00 |  |")
+    assert "| 2.0 % | 30 % |" in text                   # shares of actions as percentages
+    assert "red+pink" not in text                     # only the columns of interest
+    assert "**shipped**" in text.splitlines()[-1].split(" | ")[2]     # seed 1's column
+    assert "written at commit abc1234 (clean tree)" in text
+
+
+def test_comparison_table_gives_intervals_random_share_and_smaller_n():
+    text = render_table("baselines_reduced.json", COMPARISON)
+    assert "| `ncs` | 0.98 [0.90, 1.00] (7.0 % random) |" in text
+    assert "| `mpc` | 0.56 [0.37, 0.73] (n = 25) |" in text
+    assert "*partial goals*" in text and "| `ncs` | 1.00 [0.93, 1.00] |" in text
+    assert "from a tree with uncommitted changes" in text
+
+
+def test_command_is_rebuilt_from_the_tables_metadata():
+    assert table_command("variants/short/seeds_robogym_reduced.json", SEEDS) == (
+        "python -m ncs_lite reproduce seeds --seeds 0 1 --env robogym-rearrange --set train.epochs=2 "
+        "--runs .cache/seeds-short --out-dir figures/tables/variants/short")
+    # a table written before `ncs_overrides` was recorded: the override read from its `ncs` section
+    old = {**copy.deepcopy(SEEDS), "overrides": [], "env": "block-rearrange", "objects": [4, 7]}
+    del old["ncs_overrides"]
+    old["ncs"]["restarts"] = 8
+    assert table_command("seeds_reduced.json", old) == \
+        "python -m ncs_lite reproduce seeds --seeds 0 1 --set ncs.restarts=8"
+    assert table_command("baselines_reduced.json", COMPARISON) == \
+        "python -m ncs_lite reproduce baselines --episodes 50 --mpc-episodes 25"
+    assert table_command("robogym_reduced.json", SINGLE) == "python -m ncs_lite reproduce robogym"
+    assert table_command("robogym_reduced.json", {**SINGLE, "objects": [4], "checkpoint": "other.pt"}) == \
+        "python -m ncs_lite reproduce robogym --checkpoint other.pt --objects 4"
+
+
+def test_headline_prefers_a_seeds_table_and_skips_absent_ones():
+    with_seeds = render_results_block({"seeds_robogym_reduced.json": SEEDS, "robogym_reduced.json": SINGLE})
+    assert "robogym-rearrange: `ncs` on slot states, 2 training seeds | 0.80 ± 0.25 (0.70) |" in with_seeds
+    assert "robogym-rearrange: `ncs-oracle` (ground truth) | 0.98 [0.93, 0.99] |" in with_seeds
+    assert "reproduce robogym" not in with_seeds and "def5678" not in with_seeds
+    without = render_results_block({"robogym_reduced.json": SINGLE})
+    assert "robogym-rearrange: `ncs` on slot states, one training seed | 0.63 [0.53, 0.72] |" in without
+    assert "`python -m ncs_lite reproduce robogym`" in without
+    assert "Main comparison" not in without                # no baselines table: no comparison
+
+
+def test_formats():
+    assert format_value(0.987, "rate") == "0.99" and format_value(0.0125, "num3") == "0.013"
+    assert format_value(0.041, "pct") == "4.1 %" and format_value(0.5, "pct") == "50 %"
+    assert format_value(1323, "int") == "1,323" and format_value(float("nan")) == "n/a"
+    assert format_mean_sd(28.4, 1.08, "min") == "28.4 ± 1.1 min"
+
+
+def test_replace_block_names_missing_markers():
+    text = "a\n<!-- results:begin -->\nold\n<!-- results:end -->\nb\n"
+    assert replace_block(text, "results", "new") == "a\n<!-- results:begin -->\nnew\n<!-- results:end -->\nb\n"
+    with pytest.raises(ValueError, match=r"README.md must hold the marker lines <!-- times:begin -->"):
+        replace_block(text, "times", "new")
+
+
+def test_write_docs_on_a_tree_with_and_without_an_optional_table(tmp_path):
+    (tmp_path / "notebooks").mkdir()
+    (tmp_path / "notebooks" / "00_overview.ipynb").write_text(json.dumps(
+        {"cells": [{"cell_type": "markdown", "source": ["# 00 · An overview\n", "text"]}]}))
+    tables = tmp_path / "figures" / "tables"
+    tables.mkdir(parents=True)
+    (tables / "seeds_robogym_reduced.json").write_text(json.dumps(SEEDS))
+    (tmp_path / "figures" / "notebook_times.json").write_text(json.dumps({"seconds": {"00_overview": 75.0}}))
+    blocks = "".join(f"<!-- {b}:begin -->\n<!-- {b}:end -->\n" for b in ("results", "times", "notebooks"))
+    (tmp_path / "README.md").write_text("# kit\n" + blocks)
+    assert write_docs(check=True, root=tmp_path) == ["README.md (blocks: results, times, notebooks)",
+                                                     "docs/results.md"]
+    assert not (tmp_path / "docs").exists()                 # check writes nothing
+    write_docs(root=tmp_path)
+    assert write_docs(check=True, root=tmp_path) == []
+    readme = (tmp_path / "README.md").read_text()
+    assert "- [`00_overview`](notebooks/00_overview.ipynb): An overview (1.2 min)" in readme
+    assert "0.80 ± 0.25 (0.70)" in readme
+    (tables / "seeds_robogym_reduced.json").unlink()          # an optional table not written yet
+    assert write_docs(check=True, root=tmp_path) == ["README.md (blocks: results)", "docs/results.md"]
+    write_docs(root=tmp_path)
+    assert "0.80 ± 0.25" not in (tmp_path / "README.md").read_text()
+
+
+def test_links_in_readme_and_docs_point_to_files_that_exist():
+    missing = []
+    for page in [REPO_DIR / "README.md", *sorted((REPO_DIR / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text(encoding="utf-8")):
+            if target.startswith(("http://", "https://", "#", "mailto:")):
+                continue
+            if not (page.parent / target.split("#")[0]).exists():
+                missing.append(f"{page.relative_to(REPO_DIR)}: {target}")
+    assert missing == []
