@@ -14,7 +14,7 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters baselines baseline-assets clean exercises
+.PHONY: setup reproduce test bench seeds clusters baselines baseline-assets clean exercises docs
 
 setup: $(STAMP)
 
@@ -31,7 +31,7 @@ $(STAMP): environment.txt pyproject.toml
 # Committed figures name a clean commit, so a tree with uncommitted changes is refused
 # (ALLOW_DIRTY=1 writes anyway and records "dirty": true in each figure's JSON).
 reproduce: $(STAMP)
-	@if [ "$(ALLOW_DIRTY)" != 1 ] && [ -n "$$(git status --porcelain --untracked-files=no -- . ":!figures" 2>/dev/null)" ]; then \
+	@if [ "$(ALLOW_DIRTY)" != 1 ] && [ -n "$$(git status --porcelain --untracked-files=no -- . ":!figures" ":!README.md" ":!docs" 2>/dev/null)" ]; then \
 	  echo "make reproduce: the tree has uncommitted changes; commit first (figures record their commit) or pass ALLOW_DIRTY=1"; \
 	  exit 2; fi
 	mkdir -p $(BUILD)/notebooks
@@ -153,6 +153,11 @@ $(ASSETS)/nf_graph_robogym_rearrange_reduced.pt: | $(RG_GRAPH_DATA)/manifest.jso
 $(ASSETS)/nf_graph_robogym_rearrange_oracle.pt: | $(RG_GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph-nf --oracle --data $(RG_GRAPH_DATA) \
 	  --bind-graph $(ASSETS)/graph_robogym_rearrange_oracle_position.pt --out $@
+
+# The README's result blocks and docs/results.md from figures/tables/*.json and the notebook
+# times (the table commands and `make reproduce` rewrite them too; tests/test_docs.py checks them).
+docs: $(STAMP)
+	$(PY) -m ncs_lite.docs
 
 # Student copies (stubs that raise NotImplementedError) and solutions from the masters in
 # notebooks/; deterministic, so a rerun changes nothing (tests/test_exercises.py checks it).

@@ -86,7 +86,15 @@ def write_table(name: str, rows: list[dict], meta: dict, out_dir=None, allow_dir
     writer.writerows(rows)
     atomic_write_text(folder / f"{name}.csv", buf.getvalue())
     atomic_write_json(folder / f"{name}.json", {"table": name, "rows": rows, **meta, **made})
+    if out_dir is None:                 # the committed tables: the README's blocks follow them
+        _write_docs()
     return folder / f"{name}.csv"
+
+
+def _write_docs() -> None:
+    from .docs import write_docs
+
+    write_docs()
 
 
 # the sources a stage's value depends on: any edit there recomputes every stage
@@ -393,6 +401,8 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
     times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
     times.update(preset=preset, **provenance(path, allow_dirty=True))
     atomic_write_json(path, times)
+    if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
+        _write_docs()
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,

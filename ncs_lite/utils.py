@@ -285,13 +285,18 @@ def _git(*args: str) -> str:
 
 
 def dirty_files() -> list[str]:
-    """Tracked files with uncommitted changes ([] outside git), figures/ aside: figures are
-    outputs, rewritten while `make reproduce` runs, and do not change what the code does."""
+    """Tracked files with uncommitted changes ([] outside git), the generated text aside:
+    figures/, README.md and docs/ are outputs (`python -m ncs_lite.docs` rewrites the README's
+    result blocks and docs/results.md whenever a table or a notebook time is written, while
+    `make reproduce` runs), and none of them changes what the code does."""
     try:
         lines = _git("status", "--porcelain", "--untracked-files=no").splitlines()
     except (OSError, subprocess.SubprocessError):
         return []
-    return [p for p in (line[3:] for line in lines) if not p.startswith("figures/")]
+    return [p for p in (line[3:] for line in lines) if not p.startswith(GENERATED_TEXT)]
+
+
+GENERATED_TEXT = ("figures/", "README.md", "docs/")     # outputs, not code (dirty_files)
 
 
 def git_commit() -> str:
