@@ -6,7 +6,8 @@ exercises every code path. Everything a model or the trainer needs is a field he
 checkpoint stores its whole configuration as a plain dict (`to_dict`) and can be rebuilt
 from it (`from_dict`).
 
-Where Table 2 is silent, the decision is recorded in the field's comment.
+Where Table 2 is silent, the decision is recorded in the field's comment. Why `reduced`
+departs from Table 2 where it does: docs/recipe.md.
 """
 from __future__ import annotations
 
@@ -30,9 +31,8 @@ class DVAEConfig:
     tau_steps: int = 30_000     # ... over this many optimizer steps
     lr: float = 3e-4            # constant, no warm-up
     foreground_weight: float = 1.0  # weight of pixels far from the image's median colour in
-    #                             the reconstruction (1 = the paper's plain sum), see
-    #                             DSlate.forward: the smallest cube colour nearest the floor's
-    #                             is otherwise coded as floor
+    #                             the reconstruction (1 = the paper's plain sum; DSlate.forward).
+    #                             why: docs/recipe.md, `dvae.foreground_weight`
 
 
 @dataclass
@@ -134,7 +134,8 @@ class TrainConfig:
     checkpoint_every: int = 500  # optimizer steps between checkpoints
     seed: int = 0
     # polish (kit, not in the paper; see `reduced`): steps after the schedule at a constant
-    # lr with the dVAE frozen and the mixture loss's foreground weight raised
+    # lr with the dVAE frozen and the mixture loss's foreground weight raised.
+    # why: docs/recipe.md, `train.polish_steps` and `train.polish_mixture_error`
     polish_steps: int = 0
     polish_lr: float = 2e-4
     polish_foreground_weight: float = 20.0
@@ -144,13 +145,14 @@ class TrainConfig:
     # dynamics phase (kit, not in the paper; see `reduced`): steps after the polish that train
     # the dynamics alone, on the latent loss against frame t+1's states, with every other
     # part frozen and the slots read as NCS reads them (eval_iterations). Jointly, ce_dyn's
-    # gradient drowns the latent loss: the dynamics then predicts no change
+    # gradient drowns the latent loss (why: docs/recipe.md, `train.dynamics_steps`)
     dynamics_steps: int = 0
     dynamics_lr: float = 1e-3
     # render phase (kit, not in the paper; see `reduced`): steps after the dynamics phase that
     # fit the renderer (MixtureConfig.render_hidden) to the frames through the frozen mixture
     # decoder, a pixel loss on slots read as NCS reads them; nothing else moves. The state-mask
-    # decoder's masks, fitted to slot attention's, render nearly empty floor (notebook 04)
+    # decoder's masks, fitted to slot attention's, render nearly empty floor (why:
+    # docs/recipe.md, `train.render_steps`)
     render_steps: int = 0
     render_lr: float = 1e-3
     render_mask_steps: int = 0  # the render phase's first steps fit the renderer's masks to slot
@@ -159,11 +161,12 @@ class TrainConfig:
     # train the dynamics alone again, as the dynamics phase does (dynamics_lr), on states read
     # with slots.position_prior, which acts from the render phase on: the dynamics phase read
     # states without it, and a model that plans with the dynamics (MPC) reads them with it
+    # (why: docs/recipe.md, `train.refit_steps`)
     refit_steps: int = 0
     # colour augmentation of the segmentation path (kit, not in the paper; data/augment.py):
     # "none"; "channels" = the mixture loss reads each video with its RGB channels in a
     # random order; "channels_gamma" = and each channel raised to a random power. The
-    # decoder, dynamics and dVAE read the true colours
+    # decoder, dynamics and dVAE read the true colours (why: docs/recipe.md, `train.color_augment`)
     color_augment: str = "none"
 
     def main_steps(self) -> int:
@@ -373,7 +376,7 @@ class NCSConfig:
     clusters: int = 30          # graph nodes, Table 4 (block-rearrange 30)
     restarts: int | None = None  # slot-attention restarts per image when an agent reads a scene
     #                             (DSlatePerception); None = the model's env's (ncs.perception.
-    #                             RESTARTS_BY_ENV: 32 block-rearrange, 8 robogym-rearrange)
+    #                             RESTARTS_BY_ENV). why: docs/recipe.md, "How NCS reads a model"
     graph_restarts: int = 8     # ... per frame when `graph` and `graph-nf` read the buffer's videos
     iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
     extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
@@ -390,7 +393,7 @@ class NCSConfig:
     #                             scene's median type distance (the kit's; a partial goal's
     #                             unconstrained cubes are no constraints), "hungarian" = all of
     #                             them (the paper's plain matching), "either" / "mutual" = one /
-    #                             both entities the other's nearest type: measured in ncs/policy.py
+    #                             both entities the other's nearest type (the rules: ncs/policy.py)
     edge_action: str | None = None  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells), or from the states of the graph's transitions,
     #                             "nearest", "compose" or "readout" (continuous positions); None =
@@ -435,85 +438,46 @@ def _paper() -> DSlateConfig:
 
 
 def _reduced() -> DSlateConfig:
-    """block-rearrange on 2 CPU cores in <= 30 minutes (see the README for the measured time).
+    """`paper` cut to 2 CPU cores and 30 minutes of training on block-rearrange, with an
+    object bias and an explicit type/state split.
 
-    Changes from `paper`, each for speed on a CPU or for this simple scene of flat cubes:
-    * widths: 64-code vocabulary (16 codes merged green/cyan/blue into one code, so a slot
-      could not tell those cubes apart), 2-layer/64-wide decoder and dynamics, slots 32 + 32;
-    * videos of 2 frames (one transition) in batches of 16, no dropout, fp32 (faster than bf16
-      autocast at these widths on the reference CPU: bf16 pays more in casts than it saves);
-    * schedule: 8 epochs of 5,000 episodes (2,500 steps); the first 600 train the dVAE alone
-      while tau cools 1.0 -> 0.1, then slot attention, decoder and dynamics train at lr 1e-3
-      (100 warm-up steps, cosine decay);
-    * decoder token dropout 0.5: the autoregressive decoder can otherwise predict these
-      low-entropy scenes from its own context and ignore the slots (cf. word dropout in
-      text VAEs); masking half of its inputs makes it read them;
-    * object bias (not in the paper; notebook 04 explains it): slot attention reads a pixel
-      CNN at stride 2 (32x32 masks, as in STEVE) instead of the 16x16 token embeddings, and
-      learns from an auxiliary mixture decoder alone (`slot_grad` 0) whose mixing weights are
-      slot attention's own masks (`mixture.alpha = "attention"`);
-    * the mixture loss weights pixels far from the image's median colour 5x
-      (`mixture.foreground_weight`): with a plain sum the floor's slot tends to paint the
-      cube closest to the floor's colour (green);
-    * 1,200 polish steps after the schedule (`train.polish_steps`): lr 2e-4, dVAE frozen,
-      foreground weight 20, the mixture scored per slot (last item);
-    * the type/state split (notebook 04 measures it): the state s is where the slot
-      attends, its attention's centroid and spread (`slots.position_state`, state_dim 4, as
-      in Invariant Slot Attention); the mixture decoder paints one look per slot from z alone
-      (`mixture.appearance = "type"`); a detached head draws each slot's mask from s
-      (`mixture.state_mask_weight`, so slots decode on their own: `DSlate.render`); the
-      dynamics also learns from a latent loss against frame t+1's states
-      (`dynamics.latent_weight`); the dVAE weights foreground pixels 5x
-      (`dvae.foreground_weight`: it coded every green pixel as floor);
-    * 2,000 dynamics steps after the polish (`train.dynamics_steps`): the dynamics alone, on
-      the latent loss, every other part frozen. Trained only jointly, its latent loss stayed
-      at 0.55-1.0 per transition (10th-90th percentile of steps 1,200-3,100 of the shipped
-      loss log; median 0.75) and it found the moved slot in
-      0.44 ± 0.09 of held-out transitions (3 seeds, figures/tables/seeds_reduced.csv): the
-      next frame's token cross-entropy (about 37 nats) drowns it. With the phase added to
-      the shipped checkpoint (`train --extend`): 0.75 (figures/tables/shipped).
-    * 4,000 render steps after the dynamics phase (`train.render_steps`): a renderer
-      (`mixture.render_hidden`, state_decoder.py) fitted to the frames through the frozen
-      mixture decoder, every other part frozen, so that `DSlate.render` draws the cubes: the
-      state-mask head, fitted to slot attention's soft masks, rendered nearly empty floor
-      (foreground error 0.29 ± 0.05 against the empty floor's 0.36, docs/HISTORY.md). The
-      first 1,000 fit its masks to slot attention's (`train.render_mask_steps`): from the
-      pixel loss alone, seed 1's renderer stayed near the floor (the README gives the runs).
-    * from the render phase on, a prior of 2 grid cells on where a slot is
-      (`slots.position_prior`): the spare slot, which holds nothing, took its state from
-      stray attention that jumps between frames (moved slot 0.83 ± 0.06 over 3 seeds before
-      the prior, docs/HISTORY.md; even with it, 0.83 ± 0.13 of the misses that remain fall on
-      a slot holding no object, `moved_misses_objectless`, README). It acts on the render
-      phase and every read after training, so finished runs extend by it; slot attention
-      learns without it.
-    * 2,000 refit steps after the render phase (`train.refit_steps`): the dynamics alone
-      again, on states read with the prior. The prior pulls a cube's centroid a little toward
-      the image's centre; a dynamics fitted without it mispredicts where a pick lands, and
-      MPC, which plans with it, fell from 0.64 to 0.24 of 25 partial-goal tasks at 4 objects
-      (`reproduce baselines` on the shipped seed without and with the prior, before the
-      refit; docs/HISTORY.md).
-    * 6 slots, not 5, and the mixture loss on colour-permuted videos
-      (`train.color_augment = "channels"`, data/augment.py): with 5 slots and true colours
-      every run ended with one colour always in the floor's slot (its attention there
-      saturated at 1: blue for the checkpoint shipped before, 100 % of blue cubes; green for
-      a rerun), and that colour's cubes were invisible to NCS. A spare slot alone made it
-      two colours; the two together none (segmentation-only runs of the recipe's schedule,
-      notebook 04 and the README give the numbers).
-    * a polish of 1,200 steps, not 600, that scores the mixture per slot
-      (`train.polish_mixture_error = "per_slot"`): with the mixed image's error two seeds of
-      three left 17 % / 18 % of the cubes without a slot of their own, often one slot for two
-      cubes of near colours (orange and yellow), its look between the two and blended by the
-      other slots' weights into each; NCS then solved 0.35 / 0.29 of the 7-object tasks
-      (seed 0: 0.98; docs/HISTORY.md). Per slot, a
-      slot pays for every colour it does not paint itself. From the first step it left one
-      colour in the floor's slot (14 % of cubes, seed 1), so it is the polish's alone.
-    The dVAE, the SLATE decoder, the dynamics' architecture and the paper's losses are kept.
-
-    Each departure is one field, so its ablation is an override of this preset, e.g.
-    `python -m ncs_lite reproduce seeds --set train.polish_steps=0` or
-    `--set mixture.foreground_weight=1 --set train.polish_steps=0`. The runs of earlier
-    sessions that led to these choices are in docs/HISTORY.md (not regenerated from this
-    commit); the shipped recipe's measured numbers are in the README, each with its command.
+    The fields it changes, each with its reason in a clause; the full reasons and the measured
+    effect of each: docs/recipe.md (one row per field); the training time: docs/results.md.
+    * CPU budget: `train.epochs` 8, `train.window` 2 (one transition per video),
+      `train.batch_size` 16, `train.lr` 1e-3 with `train.warmup_steps` 100 and
+      `train.lr_decay` "cosine" (a 30,000-step warm-up would never end), `train.precision`
+      "fp32" (bf16 autocast gains nothing at these widths);
+    * widths: `dvae.vocab_size` 64 (fewer codes merged colours), `decoder.layers` / `hidden`
+      2 / 64, `dynamics.layers` / `hidden` 2 / 64, `slots.type_dim` 32, `slots.mlp_hidden` 128,
+      `mixture.hidden` 64; `decoder.dropout` and `dynamics.dropout` 0 (short training on a
+      simple scene);
+    * the dVAE first: `train.dvae_warmup_steps` 600, `dvae.tau_steps` 600, `dvae.lr` 3e-3
+      (the tokens settle, and tau cools, before the rest reads them);
+    * `decoder.token_dropout` 0.5: the decoder must read the slots, not only its own context;
+    * object bias: `slots.encoder` "cnn" (stride 2: 32x32 masks, as in STEVE); the mixture
+      decoder (`mixture.weight` 1) mixing with slot attention's masks (`mixture.alpha`
+      "attention"), which slots learn from alone (`decoder.slot_grad` 0); foreground pixels
+      weighted 5x (`mixture.foreground_weight`, `dvae.foreground_weight`: else the colour
+      nearest the floor's ends up as floor);
+    * type/state split: `slots.state_dim` 4 and `slots.position_state` (s = where the slot
+      attends, as in Invariant Slot Attention); `mixture.appearance` "type" (one look per slot,
+      from z); `mixture.state_mask_weight` 1 (a detached head draws each mask from s);
+      `dynamics.latent_weight` 1 (the dynamics learns where the moved object's s goes);
+    * no colour always in the floor's slot: `slots.num_slots` 6 (one spare) with
+      `train.color_augment` "channels" (the mixture loss on colour-permuted videos);
+    * phases after the schedule: the polish (`train.polish_steps` 1,200 at `polish_lr` 2e-4,
+      dVAE frozen, `polish_foreground_weight` 20, `polish_mixture_error` "per_slot": no cube
+      left in the floor's slot, no slot holding two cubes of near colours); then three that
+      train one part each: the dynamics phase (`train.dynamics_steps` 2,000: trained jointly,
+      the next frame's token loss drowns the latent loss); the render phase
+      (`train.render_steps` 4,000, the first `render_mask_steps` 1,000 on slot attention's
+      masks, `mixture.render_hidden` 64: so that `DSlate.render` draws the cubes); the refit
+      phase (`train.refit_steps` 2,000: the dynamics again, on states read with the prior);
+    * `slots.position_prior` 2, from the render phase on: a slot holding nothing keeps still.
+    `train.checkpoint_every` 250 only sets how often a run saves. The dVAE, the SLATE decoder,
+    the dynamics' architecture and the paper's losses are kept. Each departure is one field, so
+    its ablation is an override of this preset (`reproduce seeds --set train.polish_steps=0`);
+    the runs that led to them are dated in docs/HISTORY.md.
     """
     return DSlateConfig(
         name="reduced",
@@ -562,10 +526,9 @@ PRESETS = {"ci": _ci, "reduced": _reduced, "paper": _paper}
 # (`get_preset(name, env)`; the same as `--set` overrides, recorded in the checkpoint's config).
 ENV_OVERRIDES = {
     "robogym-rearrange": {
-        # robogym's 13 colours on a brown table: with foreground pixels weighted 5x, the dVAE
-        # round trip painted whole colours as the table (every lime pixel of the checkpoint
-        # shipped before; pink 23 %, lime 18 % after the first 2,500 steps of a dVAE alone);
-        # 20x: every colour under 10 % but pink, 14 % (docs/HISTORY.md)
+        # robogym's 13 colours on a brown table: at 5x the dVAE round trip painted whole
+        # colours as the table. why 20x: docs/recipe.md, `dvae.foreground_weight`; the runs:
+        # docs/HISTORY.md, "robogym-rearrange's dVAE foreground weight"
         "reduced": ("dvae.foreground_weight=20",),
     },
 }

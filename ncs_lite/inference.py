@@ -6,6 +6,9 @@
     next_slots = model.predict(out.slots, actions)  # actions (B, 6)
 
 `infer` checks its input (ValueError naming the bad shape or dtype and what was expected).
+How the shipped assets were made: the Makefile's asset targets (`make block-graphs`,
+`make baseline-assets`, `make robogym-assets`, `make robogym-baseline-assets`) and
+docs/HISTORY.md, "The shipped block-rearrange checkpoint: how it was made".
 """
 from __future__ import annotations
 
@@ -21,13 +24,13 @@ from .utils import PACKAGE_DIR, cache_dir
 __all__ = ["load_dslate", "obtain_dslate", "shipped_asset", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH",
            "SHIPPED_SLOT_GRAPH"]
 
-# The `reduced` block-rearrange checkpoint shipped with the kit (see README for the command).
+# The `reduced` block-rearrange checkpoint shipped with the kit (module docstring: how it was made).
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
-# its NCS graph (`python -m ncs_lite graph ... --clusters 30`, see README)
+# its NCS graph (`python -m ncs_lite graph ... --clusters 30`; `make block-graphs`)
 SHIPPED_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced.pt"
 # its graph on slot states (`graph ... --state slot`: Table 3's second column)
 SHIPPED_SLOT_GRAPH = PACKAGE_DIR / "assets" / "graph_block_rearrange_reduced_slot.pt"
-# the baselines' and the oracles' assets (`make baseline-assets`: the commands, listed in the README)
+# the baselines' and the oracles' assets (`make baseline-assets`: the Makefile holds the commands)
 ASSETS = PACKAGE_DIR / "assets"
 SHIPPED_ORACLE_GRAPH = ASSETS / "graph_block_rearrange_oracle.pt"              # ncs-oracle, masks
 SHIPPED_POSITION_GRAPH = ASSETS / "graph_block_rearrange_oracle_position.pt"   # ncs-oracle, positions
@@ -38,7 +41,7 @@ _SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT
                    ("ncs-oracle", "mask"): SHIPPED_ORACLE_GRAPH, ("ncs-oracle", "slot"): SHIPPED_POSITION_GRAPH,
                    ("nf", "mask"): SHIPPED_NF_GRAPH, ("nf-oracle", "mask"): SHIPPED_NF_ORACLE_GRAPH}
 # robogym-rearrange: its `reduced` checkpoint, its graph on slot states (Table 3's
-# second column, 45 nodes) and the position oracle's graph; the README lists the commands
+# second column, 45 nodes) and the position oracle's graph (`make robogym-assets`)
 ROBOGYM_CHECKPOINT = ASSETS / "dslate_robogym_rearrange_reduced.pt"
 ROBOGYM_SLOT_GRAPH = ASSETS / "graph_robogym_rearrange_reduced_slot.pt"
 ROBOGYM_POSITION_GRAPH = ASSETS / "graph_robogym_rearrange_oracle_position.pt"
@@ -53,7 +56,7 @@ _SHIPPED = {
                                     ("nf", "slot"): ROBOGYM_NF_GRAPH, ("nf-oracle", "slot"): ROBOGYM_NF_ORACLE_GRAPH}},
 }
 SHIPPED_ENVS = tuple(_SHIPPED)
-# 4-object training episodes per preset (the shipped checkpoint used 5000, buffer seed 0)
+# 4-object training episodes per preset (`reduced`: as many as the shipped checkpoint's buffer)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
 
 

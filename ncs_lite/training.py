@@ -18,7 +18,7 @@ What the loop guarantees:
   again, on states read with `slots.position_prior`, which acts from the render phase on).
   With `TrainConfig.color_augment` the mixture loss reads each video with its colour
   channels permuted (and, with "channels_gamma", each raised to a random power;
-  data/augment.py), drawn from (seed, step) like the batch.
+  data/augment.py), drawn from (seed, step) like the batch. Why each phase: docs/recipe.md.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -329,13 +329,14 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
     Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
-    then `polish_steps`, then `dynamics_steps`) or, if given, until global step `max_steps` (schedules still follow
-    the full run, so a run stopped with `max_steps` and resumed matches an uninterrupted one).
+    then `polish_steps`, `dynamics_steps`, `render_steps` and `refit_steps`) or, if given,
+    until global step `max_steps` (schedules still follow the full run, so a run stopped with
+    `max_steps` and resumed matches an uninterrupted one).
     Returns `out_path`.
     `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
     `compile` runs the forward through `torch.compile` (inductor: fuses the elementwise work
-    around the matmuls; the paper-width bf16 step measured 1.51x faster on a CPU, see
-    `bench train`). The first steps pay the compilation; checkpoints are unchanged.
+    around the matmuls; what it gains: docs/benchmarks.md, `bench train`). The first steps
+    pay the compilation; checkpoints are unchanged.
     `force` starts afresh over an existing run at `out_path`; `overrides` (the `--set`
     strings that made `cfg`) are recorded in the checkpoint.
     `extend`: a finished checkpoint (another path) to continue into `out_path` under a schedule

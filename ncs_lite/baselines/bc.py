@@ -48,7 +48,7 @@ class BCConfig:
 BC_PRESETS = {
     "ci": BCConfig(channels=(8, 16, 16), feature_dim=32, hidden=32, steps=20, batch_size=8),
     "reduced": BCConfig(channels=(16, 32, 32, 32), feature_dim=128, hidden=128, steps=4000, batch_size=32,
-                        lr=1e-3),   # measured to learn the 16-episode buffer in 300 steps (3e-4 not measured)
+                        lr=1e-3),   # the kit's choice for a short run (docs/HISTORY.md, "Moved from the docstrings")
     "paper": BCConfig(),
 }
 

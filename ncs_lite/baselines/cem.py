@@ -1,8 +1,8 @@
 """The cross-entropy method (CEM), the MPC baseline's optimiser (Appendix B).
 
-The paper ran mbrl-lib's CEM (Pineda et al., 2021); mbrl-lib cannot be installed here (see
-DESIGN.md), so this is the kit's own, with mbrl-lib's parameters and their meaning
-(`mbrl.planning.CEMOptimizer`):
+The paper ran mbrl-lib's CEM (Pineda et al., 2021); mbrl-lib cannot be installed on the
+kit's Python 3.11 (it pins hydra-core 1.0.3; notebook 07), so this is the kit's own, with
+mbrl-lib's parameters and their meaning (`mbrl.planning.CEMOptimizer`):
 
 - `iterations` rounds; each samples `population` solutions around the mean, keeps the
   `ceil(elite_ratio * population)` cheapest (the elites) and moves the mean and variance

@@ -2,6 +2,7 @@
 
 Each benchmark measures the kit against a reference measured in the same run, so its
 figures are ratios that survive a change of machine. Timings live here, never in tests.
+How to read each JSON: docs/benchmarks.md; dated results of earlier runs: docs/HISTORY.md.
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ from its one call). A block-rearrange step is that render plus bookkeeping; a
 robogym-rearrange step is the two passes plus the kinematics of the placed pose.
 `ratio_to_render` says how close to that floor an env runs. For robogym-rearrange,
 `ratio_to_one_rgb_pass` is the step rate against one bare RGB pass (a reference that leaves
-out the segmentation pass every step must draw; the bench's reference before),
+out the segmentation pass every step must draw; kept to compare with earlier runs),
 `ms_per_call` times the parts of a step on the scene the steps left (both passes, the
 kinematics, the random action's free-spot search), and `ratio_to_both_passes` is the step rate
 against the env's own two passes.

@@ -1,20 +1,21 @@
 """Colour augmentation for the segmentation path (`TrainConfig.color_augment`; not in the paper).
 
 Why: with the pixel CNN and the mixture decoder (`reduced`), slot attention learns a soft
-k-means over colours, and that search locks in. Each training run ends with one of the
-buffer's 8 colours always in the floor's slot (the floor's look drifts toward it, and its
-attention there saturates at exactly 1, so no gradient moves it out): blue in the shipped
-seed-0 checkpoint, green in a rerun of the same recipe. Training the segmentation on
-videos whose RGB channels are permuted (one random order per video, the identity among the
-six) shows it 8 x 6 colours in which no fixed colour can be merged with the grey floor; with
-a sixth slot (one spare) no colour was absorbed in the runs that chose this (notebook 04).
-A channel permutation keeps every cube's shape, position and contrast with the floor.
+k-means over colours, and that search locks in: without augmentation a training run can end
+with one of the buffer's 8 colours always in the floor's slot (the floor's look drifts toward
+it, and its attention there saturates at exactly 1, so no gradient moves it out). Training
+the segmentation on videos whose RGB channels are permuted (one random order per video, the
+identity among the six) shows it 8 x 6 colours in which no fixed colour can be merged with
+the grey floor; `reduced` pairs it with a spare slot (why: docs/recipe.md, `slots.num_slots`
+and `train.color_augment`). A channel permutation keeps every cube's shape, position and
+contrast with the floor.
 
 A permutation is an isometry of RGB space, though: it never changes how close two colours
 are, so it cannot teach slot attention to split two near ones (orange and yellow differ by
 0.31, mostly in green). `"channels_gamma"` also raises each channel of a video to a random
 power g (log-uniform in [1/2.5, 2.5]), which stretches some distances and shrinks others,
-so no fixed colour distance holds across the training videos.
+so no fixed colour distance holds across the training videos (a variant run and not adopted:
+docs/results.md, `variants/channels_gamma`).
 
 Shapes: videos (B, T, H, W, 3) uint8 -> the same, channels permuted per video.
 """

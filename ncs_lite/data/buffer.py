@@ -1,7 +1,8 @@
 """The experience buffer: short random 'video demonstrations' stored as compressed shards.
 
 Each episode has `frames` = 5 images and 4 pick-and-move actions; each action moves one
-random cube to a random free cell (Appendix A, DESIGN.md). A buffer directory holds
+random object to a random free place (Appendix A; docs/environments.md, "The experience
+buffer"). A buffer directory holds
 
     manifest.json        what was asked for (env config, episodes, seed, format, versions)
     shard-00000.npz ...  `shard_size` episodes each, written atomically, with the manifest's

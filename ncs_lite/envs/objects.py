@@ -13,9 +13,9 @@ from a package registry, so the kit's 94 are:
      pixels or none (the rule is checked in tests/test_robogym.py).
 
 `pybullet_data` is part of the `pybullet` wheel on PyPI (bullet3, zlib licence; the domino's
-own notice asks for a citation of PyBullet, given in the README). Every object is later
-scaled so that its longest dimension is the env's `object_size` (Appendix C), so only the
-proportions given here matter.
+own notice asks for a citation of PyBullet, given in the README's "Citation and licences").
+Every object is later scaled so that its longest dimension is the env's `object_size`
+(Appendix C), so only the proportions given here matter.
 
 An entry: (name, kind, spec), kind "box" | "sphere" | "ellipsoid" | "cylinder" | "capsule"
 with spec the MuJoCo size proportions (and "lying" for a cylinder or capsule on its side),
@@ -85,7 +85,7 @@ COLOUR_NAMES = ("red", "green", "blue", "yellow", "magenta", "cyan", "orange", "
 
 
 def source(entry) -> str:
-    """Where an object comes from (for the README's table and notebook 01)."""
+    """Where an object comes from (for notebook 01's table of sources)."""
     name, kind, spec = entry
     return SOURCE_PRIMITIVE if kind != "mesh" else f"{SOURCE_PYBULLET}: {spec[0]}"
 

@@ -18,10 +18,10 @@ Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored.
      overlap another object -> no-op. Otherwise the object is put there at rest on the
      table, with its orientation.
 Placement is kinematic: MuJoCo computes the poses the camera draws but steps no physics, so
-an object keeps its orientation and place until it is moved (Appendix C). With a physics
-settle after each placement, objects that were never touched tipped (up to 23 degrees) and
-crept (up to 0.85 mm a move) until footprints overlapped; tests/test_robogym.py checks the
-simulator's poses against the ones set.
+an object keeps its orientation and place until it is moved (Appendix C); with a physics
+settle, untouched objects tipped and crept until footprints overlapped (docs/HISTORY.md,
+"robogym-rearrange: kinematic placement"). tests/test_robogym.py checks the simulator's
+poses against the ones set.
 
 Tasks never fail to sample: footprints are drawn at random, largest first, and after 20 dead
 ends on a fixed lattice that holds the largest footprint in each cell (`lattice`); an object
@@ -29,9 +29,9 @@ count whose starts and goals the lattice cannot hold is refused when the env is 
 A constraint holds when its object is within `success_threshold` (x, y) of its goal.
 
 Each object is one geom whose shape `_show` sets from a table of compiled shapes
-(`_shape_table`), and `TopCamera` renders the image and the masks with MuJoCo's low-level API;
-both were made faster than the first version (94 hidden geoms per object, `mujoco.Renderer`)
-without changing a bit of what the env returns (tests/test_robogym.py pins a digest).
+(`_shape_table`), and `TopCamera` renders the image and the masks with MuJoCo's low-level API,
+both for speed (docs/benchmarks.md, `bench envs`); tests/test_robogym.py pins a digest of what
+the env returns.
 
 Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, importing
 ncs_lite picks EGL, then OSMesa, whichever library the system has (`headless.py`); with
@@ -53,9 +53,9 @@ from .headless import render_failure_advice
 from .objects import COLOURS, OBJECTS, load_mesh
 
 # The floor beyond the table has the table's colour and the light is directional (no
-# gradient): at `reduced`, slot attention gave one slot to the table and shared the rest
-# evenly (fg-ARI 0.06) on a darker floor under a spot light; block-rearrange's uniform floor
-# is what the recipe separates objects from.
+# gradient): the `reduced` recipe separates objects from a uniform background, as
+# block-rearrange's; on a darker floor under a spot light it gave one slot to the table and
+# shared the rest evenly (docs/HISTORY.md, "robogym-rearrange before kinematic placement").
 TABLE_RGB = (0.55, 0.50, 0.45)
 FLOOR_RGB = TABLE_RGB
 ONE_HOT_SHAPES = np.eye(len(OBJECTS), dtype=np.float32)   # the shape half of info["types"]
@@ -395,8 +395,8 @@ def _shape_table_mjcf(geometry) -> str:
 def _shape_table(object_size: float):
     """Each shape's geometry (`object_geometry`) and its compiled geom fields (SHAPE_FIELDS),
     read from a model with one body per shape. An env's objects have one geom each, which
-    `_show` turns into any shape: 94 hidden geoms per object made every physics step 10x
-    dearer (MuJoCo's kinematics and collision loops visit every geom)."""
+    `_show` turns into any shape: hidden geoms, one per shape in every object, would make every
+    physics step dearer (MuJoCo's kinematics and collision loops visit every geom)."""
     geometry = [object_geometry(e, object_size, f"shape{j}") for j, e in enumerate(OBJECTS)]
     m = mujoco.MjModel.from_xml_string(_shape_table_mjcf(geometry))
     ids = [m.geom(f"o{j}").id for j in range(len(OBJECTS))]
@@ -407,7 +407,7 @@ def _extent_over_shapes(model, geoms: np.ndarray, fields: dict) -> float:
     """MuJoCo's automatic `stat.extent` (the longest side of the box around every body and every
     geom's bounding sphere but planes, at qpos0) with each object any of the shapes. The camera's
     clip planes scale with it, so it must not depend on the shape an object was compiled with;
-    this is also the extent of the model that held every shape in every object (before 1deec9c)."""
+    this is also the extent of a model that holds every shape in every object (the first version)."""
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     points = [data.xpos[1:]]
@@ -463,8 +463,8 @@ class TopCamera:
     below its top), each read back at once. MuJoCo's low-level API, as `mujoco.Renderer` uses
     it (GL context, `MjrContext`, offscreen buffer), without its per-call allocations and its
     second scene update. Both passes draw at the buffer's origin: drawn beside each other (one
-    read instead of two, 10 % faster) a few pixels where an object meets the table came out
-    differently from the separate passes the shipped data were made with."""
+    read instead of two) a few pixels where an object meets the table come out differently
+    from the separate passes the shipped data were made with."""
 
     def __init__(self, model, size: int):
         if model.ngeom >= 255:

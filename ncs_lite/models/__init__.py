@@ -14,7 +14,7 @@ __all__ = ["DVAE", "DSlate", "Dynamics", "MODEL_VERSION", "MixtureDecoder", "Pix
            "SlotAttention", "SlotInference", "TransformerDecoder", "cosine_anneal", "tau_schedule"]
 
 # Once slot attention commits, softmax weights underflow into denormal floats, and CPU
-# matmuls over denormals are many times slower: the `reduced` step went from 0.7 s to 1.8 s
-# mid-run (measured). Flush them to zero. The flag is per thread and worker threads copy it
-# when they start, so it is set here, at import, before torch starts its thread pool.
+# matmuls over denormals are many times slower (a `reduced` run slowed mid-run: docs/HISTORY.md,
+# "Moved from the docstrings"). Flush them to zero. The flag is per thread and worker threads
+# copy it when they start, so it is set here, at import, before torch starts its thread pool.
 torch.set_flush_denormal(True)

@@ -6,6 +6,7 @@ object through a video. The dynamics predicts s_{t+1} from all slots and the act
 copies z, which makes the type action-invariant and the state the part that moves. With
 cfg.slots.position_state (not in the paper; `reduced`), the last POSITION_FEATURES state
 features are where the slot attends (`_with_position`), so s holds where its object is.
+Why `reduced` adds the mixture, mask and latent losses and the later phases: docs/recipe.md.
 
 Training loss for a video of T frames (per-image sums, averaged over images):
     mse      dVAE reconstruction of every frame (sum over pixels; pixels far from the image's
@@ -60,7 +61,7 @@ MODEL_VERSION = "dslate-2"
 POSITION_FEATURES = 4
 LOSSES = ("loss", "mse", "ce", "ce_dyn", "mix", "mask", "latent")
 # RGB distance from the median colour above which a pixel counts as foreground in the
-# weighted mixture loss (cube-to-floor distances here are >= 0.47; anti-aliased edges lower)
+# weighted losses: well below a cube's distance to the floor (anti-aliased edges are lower)
 FOREGROUND_DISTANCE = 0.1
 
 
@@ -298,8 +299,8 @@ class DSlate(nn.Module):
                                             foreground_weight, mixture_error).mean()
             loss = loss + self.cfg.mixture.weight * out["mix"]
         if self.state_masks is not None:
-            # a read-out: its gradient stops at s (through slot attention it collapsed the
-            # masks into one slot that a bump can draw: fg-ARI 0.08 after 900 joint steps)
+            # a read-out: its gradient stops at s (through slot attention it collapsed the masks
+            # into one slot that a bump can draw: docs/HISTORY.md, "The type/state split")
             logits = self.state_masks(slots[..., self.type_dim:].flatten(0, 1).detach())   # (B*T, K, N')
             out["mask"] = mask_cross_entropy(logits, attn.flatten(0, 1).detach())
             loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
@@ -364,12 +365,11 @@ class DSlate(nn.Module):
         config's (`mixture.foreground_weight`, `mixture.error`).
 
         A summed squared error, with pixels whose colour is far (> FOREGROUND_DISTANCE in RGB)
-        from the image's median colour weighted by `mixture.foreground_weight`. Why: a cube
-        merged into the floor's slot costs its squared colour distance to the floor, and the
-        plateau where slots paint the floor breaks cube by cube in that order. Green is the
-        closest colour to the floor (0.23 against 0.30-0.89) and with the plain sum the
-        floor's slot painted it in every image (notebook 03). The median colour is the
-        floor's in these scenes (most pixels); no ground truth is read.
+        from the image's median colour weighted by `mixture.foreground_weight`: a cube merged
+        into the floor's slot costs only its squared colour distance to the floor, so with a
+        plain sum the floor's slot keeps the cube nearest its colour (why: docs/recipe.md,
+        `mixture.foreground_weight`). The median colour is the floor's in these scenes (most
+        pixels); no ground truth is read.
         With error "per_slot" each pixel's error is that of every slot's own patch, weighted
         by the slot's mixing weight, instead of the mixed patch's: two slots can then no
         longer share two cubes by blending their looks into both colours.
@@ -406,7 +406,7 @@ class DSlate(nn.Module):
     @contextmanager
     def _eval_mode(self):
         """Eval mode for the block, then the mode the model was in. Switches only a training
-        model: `train()` walks every submodule, a sixth of an MPC decision when done per call."""
+        model: `train()` walks every submodule, a cost MPC would pay at every call."""
         if not self.training:
             yield
             return
@@ -421,7 +421,7 @@ class DSlate(nn.Module):
               init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1) -> SlotInference:
         """Slots and masks of single images.
 
-        images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations (7);
+        images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations;
         num_slots overrides K (e.g. 8 slots for 7 objects: slot attention works for any K);
         init_slots (B, K, D) continues from a previous frame; `seed` fixes the initial
         slot sample so inference is reproducible.
@@ -429,8 +429,8 @@ class DSlate(nn.Module):
         restarts > 1 runs slot attention from that many initial samples and keeps, per image,
         the one the model itself reconstructs best (`reconstruction_error`: no ground truth).
         Slot attention is a local search: now and then two slots share a cube and another
-        cube falls into the background slot, and a fresh start usually avoids it (notebook 03
-        measures fg-ARI with one start and with the restarts NCS acts with,
+        cube falls into the background slot, and a fresh start usually avoids it (why:
+        docs/recipe.md, "How NCS reads a model"; the restarts NCS acts with:
         `ncs.perception.RESTARTS_BY_ENV`).
         """
         if not isinstance(restarts, int) or restarts < 1:
@@ -465,9 +465,11 @@ class DSlate(nn.Module):
                              attention: torch.Tensor) -> torch.Tensor:
         """How badly slots explain their images, per image (B,): lower is better.
 
-        x (B, H, W, 3) in [0, 1]. With a mixture decoder: its summed squared pixel error (the
-        `mix` loss, scored as the polish steps score it when there are any); without one (the paper's model): the decoder's token cross-entropy of the
-        dVAE's tokens, teacher-forced (the `ce` loss). Used to rank restarts in `infer`."""
+        x (B, H, W, 3) in [0, 1], slots (B, K, D), attention (B, K, N'). With a mixture
+        decoder: its summed squared pixel error (the `mix` loss, scored as the polish steps
+        score it when there are any); without one (the paper's model): the decoder's token
+        cross-entropy of the dVAE's tokens, teacher-forced (the `ce` loss). Ranks restarts in
+        `infer`."""
         if self.mixture is not None:       # the error the slots were trained on last
             t = self.cfg.train
             return self.mixture_error(x, slots, attention,

@@ -13,8 +13,8 @@ Where the mixing weights (alpha) come from:
 * "decoder": each slot also paints an alpha logit, softmax over slots (Locatello et al.);
 * "attention": alpha is slot attention's own mask. The reconstruction error then reaches
   the attention logits directly: a pixel that a slot cannot paint pushes the pixel toward
-  another slot, soft k-means with learned colours. On block-rearrange this broke the
-  "every slot paints the floor" plateau 2-3x sooner than "decoder" (measured, README).
+  another slot, soft k-means with learned colours, which breaks the "every slot paints the
+  floor" plateau sooner than "decoder" (why: docs/recipe.md, `mixture.alpha`).
   The decoder must then work on slot attention's grid (patch = image size / grid).
 
 What a slot paints (appearance):
@@ -25,7 +25,8 @@ What a slot paints (appearance):
   floor's slot then keeps that cube at no cost (the absorbed cubes of notebook 03); one
   that does not know pays for every pixel of another colour, so the attention gradient
   moves the cube to a slot of its own. It also leaves position out of z: z only has to say
-  what the object looks like. Needs alpha "attention" (nothing else says where).
+  what the object looks like (why: docs/recipe.md, `mixture.appearance`). Needs alpha
+  "attention" (nothing else says where).
 
 It costs a small MLP over K x N positions ("slot") or K ("type"). Shapes: slots (B, K, D)
 [, attention (B, K, N)] -> patches (B, N, p*p*3), alpha (B, K, N) summing to 1 over K.

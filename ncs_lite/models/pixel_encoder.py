@@ -5,7 +5,8 @@ On block-rearrange a cube is ~9 pixels wide, so most of its tokens are edge toke
 mix cube and floor, and a mask at 16x16 cannot follow its outline. STEVE (Singh et al.,
 2022), SLATE's video successor, gives slot attention a CNN over the pixels instead and
 keeps the dVAE tokens as the decoder's targets. With `stride` 2 the features (and so the
-attention masks) are 32x32. Shapes: images (B, H, W, 3) in [0, 1] -> (B, (H/s)^2, dim).
+attention masks) are 32x32 (why: docs/recipe.md, `slots.encoder`).
+Shapes: images (B, H, W, 3) in [0, 1] -> (B, (H/s)^2, dim).
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ class PixelEncoder(nn.Module):
             nn.Conv2d(3, dim, 5, stride, 2), nn.ReLU(),
             nn.Conv2d(dim, dim, 3, 1, 1), nn.ReLU(),
             nn.Conv2d(dim, dim, 3, 1, 1))
-        # normalise before adding positions: a fresh CNN's features vary ~20x less across
+        # normalise before adding positions: a fresh CNN's features vary far less across
         # pixels than the position code, so slot attention would start grouping by place
         self.norm = nn.LayerNorm(dim)
         self.pos = nn.Parameter(sinusoid_2d(self.grid, dim))          # learned, sinusoid start

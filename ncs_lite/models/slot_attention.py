@@ -31,8 +31,8 @@ class SlotAttention(nn.Module):
         self.slot_dim, self.num_slots, self.iterations, self.heads, self.eps = (
             slot_dim, num_slots, iterations, heads, eps)
         self.mu = nn.Parameter(torch.randn(1, 1, slot_dim) * slot_dim ** -0.5)
-        # sigma starts at 1: slots drawn far apart break the symmetry between them sooner
-        # (measured: sigma 0.37 left the cube slots identical for longer; the paper is silent)
+        # sigma starts at 1 (the paper is silent): slots drawn far apart break the symmetry
+        # between them sooner (the run: docs/HISTORY.md, "Moved from the docstrings")
         self.log_sigma = nn.Parameter(torch.zeros(1, 1, slot_dim))
         self.norm_inputs = nn.LayerNorm(input_dim)
         self.to_kv = nn.Linear(input_dim, 2 * slot_dim, bias=False)   # one big matmul for k and v

@@ -9,20 +9,18 @@ Each slot is drawn as an axis-aligned 2-D Gaussian bump: a linear map of s gives
 (mu_row, mu_col), its spread (log sigma per axis) and its height a, and the mask logit at
 grid position p is a - sum_i (p_i - mu_i)^2 / (2 sigma_i^2); a softmax over slots makes the
 masks. A small object is a high narrow bump; the floor a low flat one that wins wherever no
-bump is. (A first version drew masks with an MLP over s and the coordinates and sent its
-gradient into slot attention: after 900 joint steps it drew two flat halves of the image
-and s held no position, R^2 -0.2. The bump with that gradient collapsed slot attention's
-masks into one slot, fg-ARI 0.08. With `slots.position_state`, s holds where its slot
-attends and the bump only has to read it.)
+bump is. With `slots.position_state`, s holds where its slot attends and the bump only has to
+read it. Its gradient stops at s: sent into slot attention, an MLP head did not learn where
+and a bump head collapsed the masks into one slot (docs/HISTORY.md, "The type/state split").
 
 `SlotRenderer` draws the same kind of bump for `DSlate.render`, fitted to the frames instead
 (the render phase: a pixel loss through the frozen mixture decoder). Fitted to slot
 attention's soft masks, the linear bump's cubes stay low and wide and the floor paints over
-them: the image is nearly empty floor (docs/HISTORY.md, "Rendering before the render
-phase"), and in an exploratory fit a pixel loss through the linear map barely moved it. The
-renderer's centre comes from s alone, through an MLP; its spread and height also from the
-whole slot, since what the object is (the floor or a cube) sets how big and how dominant
-its mask is.
+them: the image is nearly empty floor, and a pixel loss through the linear map does not fix
+it (why: docs/recipe.md, `train.render_steps`; the runs: docs/HISTORY.md, "Rendering before
+the render phase" and "Moved from the docstrings"). The renderer's centre comes from s
+alone, through an MLP; its spread and height also from the whole slot, since what the object
+is (the floor or a cube) sets how big and how dominant its mask is.
 
 Shapes: states (B, K, Ds) -> mask logits (B, K, N), N = grid * grid, positions in [-1, 1].
 """
