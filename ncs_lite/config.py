@@ -528,7 +528,7 @@ ENV_OVERRIDES = {
     "robogym-rearrange": {
         # robogym's 13 colours on a brown table: at 5x the dVAE round trip painted whole
         # colours as the table. why 20x: docs/recipe.md, `dvae.foreground_weight`; the runs:
-        # docs/HISTORY.md, "robogym-rearrange's dVAE foreground weight"
+        # docs/HISTORY.md, "robogym-rearrange: the dVAE's foreground weight"
         "reduced": ("dvae.foreground_weight=20",),
     },
 }
