@@ -67,7 +67,7 @@ def test_robogym_comparison_runs_every_method_from_the_shipped_assets():
     from ncs_lite.comparison import COMPARED, comparison_assets
 
     assets = comparison_assets("reduced", env="robogym-rearrange")
-    assert assets["ncs"].state == "slot" and assets["ncs"].edge_action == "nearest" and assets["ncs"].clusters == 45
+    assert assets["ncs"].state == "slot" and assets["ncs"].edge_action == "readout" and assets["ncs"].clusters == 45
     rows = run_comparison({**assets, "preset": "ci"}, counts=(4,), goals=("complete",), episodes=1, cache=False,
                           workers=1)                                   # ci: a small CEM for MPC
     assert sorted(r["method"] for r in rows) == sorted(COMPARED)
