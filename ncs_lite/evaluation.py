@@ -158,10 +158,8 @@ def step_trace(make_agent, tasks: TaskSet) -> list[dict]:
                        object_done=bool(before["constrained"][obj] and before["satisfied"][obj]))
             graph = agent.graph
             if graph.examples is not None:
-                from .ncs.graph import readout_features
-
                 state = last["current"].states[entity].reshape(1, -1)
-                read = (readout_features(state) @ graph.readout()[0]).numpy()[0]
+                read = graph.read_points(state, state)[0].numpy()[0]
                 row["read_error"] = float(np.linalg.norm(read - where))
         rows.append(row)
 

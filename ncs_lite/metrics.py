@@ -421,8 +421,10 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
         "own_slot_by_colour": {colour_names[c]: float(own_slot[labels == c].mean())
                                for c in np.unique(labels)},
         "shared_slot_pairs": shared_slot_pairs(owner, f["background"], colour, colour_names),
-        "position_r2_own_slots": ridge_probe(feats_s[train & own_slot], target[train & own_slot],
-                                             feats_s[test & own_slot], target[test & own_slot]),
+        # NaN when either half holds fewer than 2 objects with a slot of their own (a tiny model)
+        "position_r2_own_slots": (ridge_probe(feats_s[train & own_slot], target[train & own_slot],
+                                              feats_s[test & own_slot], target[test & own_slot])
+                                  if min((train & own_slot).sum(), (test & own_slot).sum()) >= 2 else float("nan")),
         "moved_slot_accuracy": float(hits.mean()),
         "moved_slot_chance": float(1.0 / K),
         "moved_misses_objectless": float(misses_objectless.mean()) if len(misses_objectless) else 0.0,

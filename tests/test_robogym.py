@@ -405,3 +405,12 @@ def test_a_refused_place_names_the_picked_object_and_step_outcomes_say_why():
     _, _, _, _, elsewhere = e.step(e.pick_and_move(1, undone["positions"][1, :2] + [0.0, 0.001]))
     assert elsewhere["moved"] == 1 and step_outcome(undone, elsewhere) == "off_goal"
     e.close()
+
+
+def test_readout_points_stay_within_the_box_of_the_transitions():
+    graph, start, end, actions = _two_node_graph("readout")
+    far = torch.tensor([[5.0, -7.0, 1.0]])                         # unlike any transition's state
+    pick, place = graph.read_points(far, far)
+    assert torch.all(pick >= torch.tensor(actions[:, :2].min(0)) - 1e-6)
+    assert torch.all(pick <= torch.tensor(actions[:, :2].max(0)) + 1e-6)
+    assert torch.all(place <= torch.tensor(end[:, :2].max(0)) + 1e-4)

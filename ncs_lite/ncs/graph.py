@@ -267,7 +267,21 @@ class TransitionGraph:
             picks, places = t["actions"][:, :2], t["actions"][:, :2] + t["actions"][:, 3:5]
             self._cache["readout"] = tuple(_ridge(readout_features(x), y)
                                            for x, y in ((t["before"], picks), (t["after"], places)))
+            # a read point stays within the box of the points it was fitted on: the quadratic
+            # read-out extrapolates past the transitions' states (few transitions, or a state
+            # unlike any of theirs), and an action must stay in the env's action space
+            self._cache["readout_box"] = tuple((y.min(0).values.double(), y.max(0).values.double())
+                                               for y in (picks, places))
         return self._cache["readout"]
+
+    def read_points(self, before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(1, 2) pick point read from the state `before` (1, D) and (1, 2) place point read from
+        the state `after` (1, D) ("readout"; float64), each within the box of its fitted points."""
+        pick_w, place_w = self.readout()
+        (pick_lo, pick_hi), (place_lo, place_hi) = self._cache["readout_box"]
+        pick = torch.clamp(readout_features(before) @ pick_w, pick_lo, pick_hi)
+        place = torch.clamp(readout_features(after) @ place_w, place_lo, place_hi)
+        return pick, place
 
     def action(self, src: int, dst: int, before=None, after=None, rank: int = 0,
                basis: torch.Tensor | None = None, mode: str | None = None) -> np.ndarray | None:
@@ -290,8 +304,7 @@ class TransitionGraph:
         before = torch.as_tensor(before, dtype=torch.float32).reshape(1, -1)
         after = torch.as_tensor(after, dtype=torch.float32).reshape(1, -1)
         if mode == "readout" and rank == 0:
-            pick_w, place_w = self.readout()
-            pick, place = readout_features(before) @ pick_w, readout_features(after) @ place_w   # (1, 2)
+            pick, place = self.read_points(before, after)                                       # (1, 2) each
             z = self.action(src, dst, before, after, 0, basis, "nearest")[2]
             return np.array([*pick[0].tolist(), z, *(place - pick)[0].tolist(), 0.0], np.float32)
         rank = rank - 1 if mode == "readout" else rank
