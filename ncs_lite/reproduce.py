@@ -152,8 +152,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
     from .metrics import factorization_scores
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import DSlatePerception, acting_restarts, buffer_transitions, slot_read
+    from .ncs.perception import DSlatePerception, acting_restarts
     from .training import read_checkpoint, train
 
     from .comparison import CI_CLUSTERS, graph_episodes_of
@@ -221,18 +220,10 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
             graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
                          "code": source_hash(*STAGE_CODE)}
-            graph = TransitionGraph.load(graph_path) if graph_path.exists() else None
-            if graph is None or graph.info.get("key") != graph_key:
-                print(f"seed {seed}: graph on {state} states", flush=True)
-                # the same cached buffer pass and build as `python -m ncs_lite graph`
-                perception = DSlatePerception(model, iterations=ncs.iterations, restarts=ncs.graph_restarts,
-                                              state=state, slot_position=ncs.slot_position)
-                states_t, states_t1, actions, moved = buffer_transitions(
-                    perception, cached_buffer(graph_episodes, env=env, seed=0))
-                graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=state,
-                                    seed=ncs.seed, true_entity=moved, edge_action=ncs.edge_action)
-                graph.info.update(key=graph_key, state=state, env=env, **slot_read(perception))
-                graph.save(graph_path)
+            graph = _graph_stage(graph_path, graph_key, lambda: DSlatePerception(
+                model, iterations=ncs.iterations, restarts=ncs.graph_restarts, state=state,
+                slot_position=ncs.slot_position), cached_buffer(graph_episodes, env=env, seed=0), ncs, env,
+                f"seed {seed}: graph on {state} states")
             row[f"graph_edges{suffix}"] = graph.num_edges
             row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
             for k in objects:
@@ -288,6 +279,25 @@ def heldout_reconstruction_error(model, env: str, images: int = 200) -> float:
     return float(np.concatenate(errors).mean())
 
 
+def _graph_stage(path: Path, key: dict, make_perception, data, ncs, env: str, what: str):
+    """The graph at `path` when it was built from `key`; else built from the buffer at `data`
+    as `make_perception()` reads it (the same cached buffer pass and build as `python -m
+    ncs_lite graph`), and saved there with its key."""
+    from .ncs.graph import TransitionGraph, build_graph
+    from .ncs.perception import buffer_transitions, slot_read
+
+    graph = TransitionGraph.load(path) if path.exists() else None
+    if graph is None or graph.info.get("key") != key:
+        print(f"{what}", flush=True)
+        perception = make_perception()
+        states_t, states_t1, actions, moved = buffer_transitions(perception, data)
+        graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=ncs.state, seed=ncs.seed,
+                            true_entity=moved, edge_action=ncs.edge_action)
+        graph.info.update(key=key, state=ncs.state, env=env, **slot_read(perception))
+        graph.save(path)
+    return graph
+
+
 def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_episodes: int) -> dict:
     """The position oracle's (a graph on ground-truth states of the graph buffer) and Random's
     success on the seeds table's tasks, cached in `runs`."""
@@ -295,20 +305,12 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
 
     from .data import cached_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import ORACLE_STATES, OraclePerception, buffer_transitions, slot_read
+    from .ncs.perception import ORACLE_STATES, OraclePerception
 
     oracle_ncs = replace(ncs, slot_position=None)
     key = {"episodes": graph_episodes, "ncs": asdict(oracle_ncs), "code": source_hash(*STAGE_CODE)}
-    path = runs / "graph-oracle.pt"
-    graph = TransitionGraph.load(path) if path.exists() else None
-    if graph is None or graph.info.get("key") != key:
-        perception = OraclePerception(ORACLE_STATES[ncs.state])
-        st, st1, acts, moved = buffer_transitions(perception, cached_buffer(graph_episodes, env=env, seed=0))
-        graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=ncs.state, seed=ncs.seed,
-                            true_entity=moved, edge_action=ncs.edge_action)
-        graph.info.update(key=key, env=env, **slot_read(perception))
-        graph.save(path)
+    graph = _graph_stage(runs / "graph-oracle.pt", key, lambda: OraclePerception(ORACLE_STATES[ncs.state]),
+                         cached_buffer(graph_episodes, env=env, seed=0), ncs, env, "the position oracle's graph")
     row = {}
     for k in objects:
         tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)

@@ -258,27 +258,26 @@ class TransitionGraph:
                 "before": torch.stack([r[3] for r in rows]), "after": torch.stack([r[4] for r in rows])}
         return self._cache["transitions"]
 
-    def readout(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The read-outs of "readout" edge actions, fitted on every kept transition: (F, 2)
-        weights from `readout_features` of the start state to the pick point (w's x, y) and
-        of the end state to the place point (w + dw's x, y), by ridge least squares (float64)."""
+    def readout(self) -> tuple[tuple, tuple]:
+        """The read-outs of "readout" edge actions, fitted on every kept transition: for the
+        pick and for the place, (F, 2) weights from `readout_features` of the start state to
+        the pick point (w's x, y), and of the end state to the place point (w + dw's x, y), by
+        ridge least squares (float64), with the low and high corners (2,) of the fitted points."""
         if "readout" not in self._cache:
             t = self.transitions()
             picks, places = t["actions"][:, :2], t["actions"][:, :2] + t["actions"][:, 3:5]
-            self._cache["readout"] = tuple(_ridge(readout_features(x), y)
+            # with each read-out, the box of the points it was fitted on: the quadratic read-out
+            # extrapolates past the transitions' states (few transitions, or a state unlike any
+            # of theirs), and an action must stay in the env's action space
+            self._cache["readout"] = tuple((_ridge(readout_features(x), y), y.min(0).values.double(),
+                                            y.max(0).values.double())
                                            for x, y in ((t["before"], picks), (t["after"], places)))
-            # a read point stays within the box of the points it was fitted on: the quadratic
-            # read-out extrapolates past the transitions' states (few transitions, or a state
-            # unlike any of theirs), and an action must stay in the env's action space
-            self._cache["readout_box"] = tuple((y.min(0).values.double(), y.max(0).values.double())
-                                               for y in (picks, places))
         return self._cache["readout"]
 
     def read_points(self, before: torch.Tensor, after: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(1, 2) pick point read from the state `before` (1, D) and (1, 2) place point read from
         the state `after` (1, D) ("readout"; float64), each within the box of its fitted points."""
-        pick_w, place_w = self.readout()
-        (pick_lo, pick_hi), (place_lo, place_hi) = self._cache["readout_box"]
+        (pick_w, pick_lo, pick_hi), (place_w, place_lo, place_hi) = self.readout()
         pick = torch.clamp(readout_features(before) @ pick_w, pick_lo, pick_hi)
         place = torch.clamp(readout_features(after) @ place_w, place_lo, place_hi)
         return pick, place
@@ -305,30 +304,25 @@ class TransitionGraph:
         after = torch.as_tensor(after, dtype=torch.float32).reshape(1, -1)
         if mode == "readout" and rank == 0:
             pick, place = self.read_points(before, after)                                       # (1, 2) each
-            z = self.action(src, dst, before, after, 0, basis, "nearest")[2]
+            z = self.action(src, dst, before, after, 0, basis, "nearest")[2]     # the edge's nearest pick height
             return np.array([*pick[0].tolist(), z, *(place - pick)[0].tolist(), 0.0], np.float32)
         rank = rank - 1 if mode == "readout" else rank
 
-        def nearest(rows, states, state):          # index into t of the rank-th nearest transition
-            idx = torch.nonzero(rows).reshape(-1)
-            x = states[idx]
-            if basis is not None:
-                x, state = x @ basis, state @ basis
-            order = torch.argsort(pairwise_distances(x, state, self.bind_metric)[:, 0], stable=True)
-            return int(idx[order[rank % len(idx)]])
+        def rank_th(rows, *pairs):     # index into t of the rank-th nearest of `rows`: the distances
+            idx = torch.nonzero(rows).reshape(-1)      # of each (states (E, D), state (1, D)) pair, summed
+            cost = 0
+            for states, state in pairs:
+                x = states[idx]
+                if basis is not None:
+                    x, state = x @ basis, state @ basis
+                cost = cost + pairwise_distances(x, state, self.bind_metric)[:, 0]
+            return int(idx[torch.argsort(cost, stable=True)[rank % len(idx)]])
 
         if mode == "nearest":
             on_edge = (t["src"] == int(src)) & (t["dst"] == int(dst))
-            idx = torch.nonzero(on_edge).reshape(-1)
-            starts, ends, b, a = t["before"][idx], t["after"][idx], before, after
-            if basis is not None:
-                starts, ends, b, a = (x @ basis for x in (starts, ends, b, a))
-            cost = (pairwise_distances(starts, b, self.bind_metric)[:, 0]
-                    + pairwise_distances(ends, a, self.bind_metric)[:, 0])
-            order = torch.argsort(cost, stable=True)
-            return t["actions"][int(idx[order[rank % len(idx)]])].numpy().copy()
-        leave = t["actions"][nearest(t["src"] == int(src), t["before"], before)]
-        enter = t["actions"][nearest(t["dst"] == int(dst), t["after"], after)]
+            return t["actions"][rank_th(on_edge, (t["before"], before), (t["after"], after))].numpy().copy()
+        leave = t["actions"][rank_th(t["src"] == int(src), (t["before"], before))]
+        enter = t["actions"][rank_th(t["dst"] == int(dst), (t["after"], after))]
         place = enter[:2] + enter[3:5]
         return np.array([*leave[:3].tolist(), *(place - leave[:2]).tolist(), 0.0], np.float32)
 
