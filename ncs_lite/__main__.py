@@ -169,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="evaluate a method on a seeded task set")
     p.add_argument("--env", default="block-rearrange")
     p.add_argument("--method", required=True,
-                   help="ncs | ncs-oracle | nf | nf-oracle | mpc | bc | iql | random")
+                   help="ncs | ncs-oracle | nf | nf-oracle | mpc | bc | iql | random | random-object "
+                        "(a calibration row: a random object to a random place)")
     p.add_argument("--checkpoint", help="dSLATE checkpoint (ncs, nf, mpc; default: the shipped one)")
     p.add_argument("--graph", help="NCS graph (ncs, ncs-oracle; `graph`) or NF graph (nf, nf-oracle; "
                                    "`graph-nf`); default: the shipped one for the method and state")

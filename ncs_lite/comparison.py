@@ -3,7 +3,7 @@
     assets = comparison_assets("reduced")          # the shipped files (others: built, cached)
     rows = run_comparison(assets, counts=(4, 5, 6, 7), goals=("complete", "partial"),
                           episodes=100, mpc_episodes=20)
-    summarize(rows)                                 # success, 95% Wilson interval, random share
+    summarize(rows)                                 # success, constraints, 95% intervals, random share
 
 `python -m ncs_lite reproduce baselines` writes its summary to figures/tables/; notebook 07
 draws it. Every method reads the same dSLATE checkpoint where it reads one (NCS, NF, MPC),

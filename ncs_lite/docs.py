@@ -71,6 +71,14 @@ COLUMNS = [
     (r"ncs_slot_(?P<k>\d+)", "`ncs` on slot states, {k} objects", "rate", "high"),
     (r"ncs_oracle_(?P<k>\d+)", "`ncs-oracle` (ground truth), {k} objects", "rate", "high"),
     (r"random_(?P<k>\d+)", "`random`, {k} objects", "rate", None),
+    # the second measure (`evaluation.summarize`'s `constraints`): not in the headline, which
+    # gives the share of tasks solved
+    (r"ncs_(?P<k>\d+)_constraints", "`ncs` on {state}, share of constraints satisfied, {k} objects", "rate", "high"),
+    (r"ncs_slot_(?P<k>\d+)_constraints", "`ncs` on slot states, share of constraints satisfied, {k} objects", "rate",
+     "high"),
+    (r"ncs_oracle_(?P<k>\d+)_constraints", "`ncs-oracle` (ground truth), share of constraints satisfied, {k} objects",
+     "rate", "high"),
+    (r"random_(?P<k>\d+)_constraints", "`random`, share of constraints satisfied, {k} objects", "rate", None),
     (r"fg_ari_(?P<k>\d+)_r(?P<r>\d+)", "fg-ARI, {k} objects, {starts}", "num2", "high"),
     (r"absorbed_(?P<k>\d+)_r(?P<r>\d+)", "objects absorbed into the floor's slot, {k} objects, {starts}", "pct", "low"),
     (r"shared_(?P<k>\d+)_r(?P<r>\d+)", "objects sharing a slot with another, {k} objects, {starts}", "pct", "low"),
@@ -353,24 +361,41 @@ def _comparison_cell(row: dict, episodes) -> str:
     return text + (f" ({', '.join(notes)})" if notes else "")
 
 
-def _render_comparison(table: dict, goals=None, notes: bool = True) -> list[str]:
-    """Methods x object counts, one markdown table per goal kind: success [95 % interval]."""
+def _constraints_cell(row: dict) -> str:
+    if not isinstance(row.get("constraints"), (int, float)):
+        return "n/a"
+    return f"{format_value(row['constraints'], 'rate')} [{row['constraints_ci_low']:.2f}, {row['constraints_ci_high']:.2f}]"
+
+
+def _render_comparison(table: dict, goals=None, notes: bool = True, constraints: bool = True) -> list[str]:
+    """Methods x object counts, one markdown table per goal kind: success [95 % interval];
+    with `constraints`, where the table has them (tables written before it was measured do
+    not), a second one per goal kind: the mean share of constraints satisfied [95 % interval]."""
     rows = table["rows"]
     methods = list(dict.fromkeys(r["method"] for r in rows))
     counts = sorted({r["num_objects"] for r in rows})
+    measured = constraints and any("constraints" in r for r in rows)
     lines = []
     for goal in goals or list(dict.fromkeys(r["goal"] for r in rows)):
         cells = {(r["method"], r["num_objects"]): r for r in rows if r["goal"] == goal}
         if not cells:
             continue
-        if len(goals or ()) != 1:
+        if len(goals or ()) != 1 or measured:
             lines += [f"*{goal} goals*", ""]
         body = [[f"`{m}`", *(_comparison_cell(cells[m, k], table.get("episodes")) if (m, k) in cells else "–"
                              for k in counts)] for m in methods]
         lines += _markdown(["method", *(f"{k} objects" for k in counts)], body) + [""]
+        if measured:
+            lines += [f"*{goal} goals, share of constraints satisfied*", ""]
+            body = [[f"`{m}`", *(_constraints_cell(cells[m, k]) if (m, k) in cells else "–" for k in counts)]
+                    for m in methods]
+            lines += _markdown(["method", *(f"{k} objects" for k in counts)], body) + [""]
     if notes:
         lines.append("Success with its 95 % Wilson interval; in brackets the share of random actions where it is "
                      "not 0, and the number of tasks where a method ran on fewer.")
+        if measured:
+            lines.append("Share of constraints satisfied: the mean over tasks of the share of a task's constraints "
+                         "that hold at its end, with its 95 % interval (the Wilson interval at the mean).")
     return lines[:-1] if lines and lines[-1] == "" else lines
 
 
@@ -492,7 +517,7 @@ def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
         rows = table["rows"]
         for column, label, kind, better in _measure_columns(table):
             numbers = _column(column)[1]
-            if kind != "rate" or not numbers:
+            if kind != "rate" or not numbers or column.endswith("_constraints"):
                 continue
             label = label.rsplit(",", 1)[0]           # "`ncs` on masks, 4 objects" -> "`ncs` on masks"
             learned = label.startswith("`ncs` on")   # a trained model's success; the others are references
@@ -528,10 +553,12 @@ def render_results_block(tables: dict) -> str:
         lines += _markdown(["result", *(f"{k} objects" for k in counts), "written by"], body) + [""]
     for path, table in _top(tables, "baselines_"):
         mpc = table.get("mpc_episodes")
+        measured = any("constraints" in r for r in table["rows"])
         lines += [f"**Main comparison, {_env(table)}**, complete goals, {table.get('episodes')} tasks per cell"
                   + (f" (`mpc`: {mpc})" if mpc else "") + f": `{table_command(path, table)}` "
-                  "(partial goals: [docs/results.md](docs/results.md)).", ""]
-        lines += _render_comparison(table, goals=["complete"], notes=False) + [""]
+                  + ("(partial goals and the share of constraints satisfied: " if measured else "(partial goals: ")
+                  + "[docs/results.md](docs/results.md)).", ""]
+        lines += _render_comparison(table, goals=["complete"], notes=False, constraints=False) + [""]
     if lines:
         lines.append("Success with its 95 % Wilson interval; in brackets the share of random actions where it is "
                      "not 0, and the number of tasks where a method ran on fewer.")

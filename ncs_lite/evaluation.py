@@ -2,8 +2,11 @@
 
 A task set is fixed by (env, num_objects, goal, horizon multiplier, action noise, seed,
 episodes): task i is `env.reset(seed=task_seed(seed, i))`, so every method faces the same
-tasks. Each episode gives one tidy row; `summarize` turns rows into success rates with 95%
-Wilson intervals, mean steps and the fraction of random fallback actions.
+tasks. Each episode gives one tidy row; `summarize` turns rows into two success measures,
+each with a 95% interval: `success`, the share of tasks whose every constraint holds at the
+end, and `constraints`, the mean share of a task's constraints that hold at the end (the
+per-constraint measure the paper's Random numbers are; docs/environments.md), with mean steps
+and the fraction of random fallback actions.
 """
 from __future__ import annotations
 
@@ -21,10 +24,10 @@ from .utils import atomic_write_text, progress
 # what a step did (`step_outcome`), counted per episode
 STEP_OUTCOMES = ("placed", "picked_nothing", "refused", "moved_done", "off_goal")
 COLUMNS = ("method", "env", "num_objects", "goal", "num_constrained", "horizon_multiplier",
-           "action_noise", "seed", "episode", "task_seed", "success", "steps", "min_steps",
-           "horizon", "random_actions", "noop_actions", *STEP_OUTCOMES)
-PER_EPISODE = ("episode", "task_seed", "success", "steps", "min_steps", "horizon", "random_actions",
-               "noop_actions", *STEP_OUTCOMES)
+           "action_noise", "seed", "episode", "task_seed", "success", "satisfied_fraction", "steps",
+           "min_steps", "horizon", "random_actions", "noop_actions", *STEP_OUTCOMES)
+PER_EPISODE = ("episode", "task_seed", "success", "satisfied_fraction", "steps", "min_steps", "horizon",
+               "random_actions", "noop_actions", *STEP_OUTCOMES)
 
 
 @dataclass(frozen=True)
@@ -65,11 +68,33 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     """95% Wilson score interval for a binomial proportion (sound at 0 and n successes)."""
     if n <= 0:
         raise ValueError(f"n must be positive, got {n}")
-    p = successes / n
+    return _wilson(successes / n, n, z)
+
+
+def _wilson(p: float, n: int, z: float) -> tuple[float, float]:
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    # exact ends at 0 and n successes (the formula gives them up to rounding)
-    return (0.0 if successes == 0 else centre - half), (1.0 if successes == n else centre + half)
+    # exact ends at p = 0 and p = 1 (the formula gives them up to rounding)
+    return (0.0 if p == 0 else max(0.0, centre - half)), (1.0 if p == 1 else min(1.0, centre + half))
+
+
+def mean_interval(values, z: float = 1.96) -> tuple[float, float]:
+    """95% interval for the mean of n values in [0, 1] (e.g. each task's share of satisfied
+    constraints): the Wilson score interval with p = their mean and n = how many there are.
+
+    Why this one: a value in [0, 1] with mean m has variance at most m (1 - m), the variance
+    the Wilson interval assumes, so the interval is sound for any such values and
+    conservative (wider than needed) when they are fractions; it equals `wilson_interval`
+    when every value is 0 or 1 (one constraint per task), and it keeps a width at a mean of
+    0 or 1 (all 0: [0, z^2 / (n + z^2)]), where a t interval or a bootstrap collapses to a
+    point. Closed form, so deterministic."""
+    v = np.asarray(values, np.float64).reshape(-1)
+    if len(v) == 0:
+        raise ValueError("values must hold at least one value, got none")
+    if not np.all((v >= 0) & (v <= 1)):
+        bad = float(v[~((v >= 0) & (v <= 1))][0])
+        raise ValueError(f"values must lie in [0, 1], got {bad}")
+    return _wilson(float(v.mean()), len(v), z)
 
 
 def step_outcome(before: dict, after: dict) -> str:
@@ -88,10 +113,22 @@ def step_outcome(before: dict, after: dict) -> str:
     return "off_goal"
 
 
+def satisfied_fraction(info: dict) -> float:
+    """The share of the constrained objects that are at their goal, from an env's `info`
+    (`constrained` and `satisfied`, (k,) bool each): 1.0 exactly when the task is solved."""
+    constrained = np.asarray(info["constrained"], bool)
+    satisfied = np.asarray(info["satisfied"], bool)
+    if constrained.shape != satisfied.shape or not constrained.any():
+        raise ValueError(f"info must constrain at least one object, with `satisfied` of the same shape; got "
+                         f"constrained {constrained.tolist()}, satisfied {satisfied.tolist()}")
+    return float((satisfied & constrained).sum() / constrained.sum())
+
+
 def run_episode(agent, env, seed: int, on_step=None) -> dict:
-    """One task: the episode's row (success, steps, random fallbacks, no-ops and the count of
-    each step outcome). `on_step(agent, before, action, after, outcome)`, if given, sees every
-    step (`step_trace`)."""
+    """One task: the episode's row (success, the share of constraints satisfied at its end
+    `satisfied_fraction`, steps, random fallbacks, no-ops and the count of each step
+    outcome). `on_step(agent, before, action, after, outcome)`, if given, sees every step
+    (`step_trace`)."""
     obs, info = env.reset(seed=seed)
     agent.reset(obs, info)
     steps = randoms = 0
@@ -107,8 +144,8 @@ def run_episode(agent, env, seed: int, on_step=None) -> dict:
         outcomes[outcome] += 1
         if on_step is not None:
             on_step(agent, before, action, info, outcome)
-    return {"success": int(terminated), "steps": steps, "min_steps": info["min_steps"],
-            "horizon": info["horizon"], "random_actions": randoms,
+    return {"success": int(terminated), "satisfied_fraction": satisfied_fraction(info), "steps": steps,
+            "min_steps": info["min_steps"], "horizon": info["horizon"], "random_actions": randoms,
             "noop_actions": outcomes["picked_nothing"] + outcomes["refused"], **outcomes}
 
 
@@ -190,9 +227,19 @@ def trace_summary(rows: list[dict]) -> dict:
 
 
 def summarize(rows: list[dict]) -> list[dict]:
-    """Rows grouped by everything but the episode -> success, 95% CI, mean steps, and the
-    shares of actions that were random fallbacks and that changed nothing (no-ops)."""
+    """Rows grouped by everything but the episode -> the two success measures, mean steps, and
+    the shares of actions that were random fallbacks and that changed nothing (no-ops):
+
+      success, ci_low, ci_high: the share of tasks solved (all constraints satisfied at the
+        end) and its 95% Wilson interval (`wilson_interval`);
+      constraints, constraints_ci_low, constraints_ci_high: the mean over tasks of the share
+        of constraints satisfied at the end (`satisfied_fraction`) and its 95% interval
+        (`mean_interval`: the Wilson interval at the mean, conservative for fractions)."""
     keys = [c for c in COLUMNS if c not in PER_EPISODE]
+    missing = [r.get("episode") for r in rows if "satisfied_fraction" not in r]
+    if missing:
+        raise ValueError(f"{len(missing)} rows (episodes {missing[:5]}) lack `satisfied_fraction`: rows made "
+                         "before it was measured; evaluate again")
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in keys), []).append(r)
@@ -200,9 +247,12 @@ def summarize(rows: list[dict]) -> list[dict]:
     for key, rs in groups.items():
         n, s = len(rs), sum(r["success"] for r in rs)
         lo, hi = wilson_interval(s, n)
+        fractions = [r["satisfied_fraction"] for r in rs]
+        c_lo, c_hi = mean_interval(fractions)
         steps = sum(r["steps"] for r in rs)
         out.append({**dict(zip(keys, key)), "episodes": n, "success": s / n, "ci_low": lo,
-                    "ci_high": hi, "mean_steps": steps / n,
+                    "ci_high": hi, "constraints": float(np.mean(fractions)), "constraints_ci_low": c_lo,
+                    "constraints_ci_high": c_hi, "mean_steps": steps / n,
                     "random_fraction": sum(r["random_actions"] for r in rs) / max(1, steps),
                     "noop_fraction": sum(r["noop_actions"] for r in rs) / max(1, steps),
                     **{f"{o}_fraction": sum(r.get(o, 0) for r in rs) / max(1, steps) for o in STEP_OUTCOMES}})
@@ -219,12 +269,13 @@ def write_csv(rows: list[dict], path: str | Path) -> Path:
     return Path(path)
 
 
-METHODS = ("ncs", "ncs-oracle", "nf", "nf-oracle", "mpc", "bc", "iql", "random")
+METHODS = ("ncs", "ncs-oracle", "nf", "nf-oracle", "mpc", "bc", "iql", "random", "random-object")
 # what each method needs besides the task: a transition graph (NCS's, or NF's scene graph),
-# a dSLATE model, a trained policy (BC, IQL)
+# a dSLATE model, a trained policy (BC, IQL); `random-object` is a calibration row that reads
+# the objects' true positions from `info`, like the oracles
 NEEDS = {"ncs": ("graph", "model"), "ncs-oracle": ("graph",), "nf": ("graph", "model"),
          "nf-oracle": ("graph",), "mpc": ("model",), "bc": ("policy",), "iql": ("policy",),
-         "random": ()}
+         "random": (), "random-object": ()}
 NEED_NAMES = {"graph": "transition graph (--graph)", "model": "dSLATE checkpoint (--checkpoint)",
               "policy": "trained policy (--policy)"}
 
@@ -305,7 +356,8 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     slots through the dynamics, which learned on them)."""
     from dataclasses import replace
 
-    from .baselines import BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent, SetGraph
+    from .baselines import (BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent,
+                            RandomObjectAgent, SetGraph)
     from .config import NCSConfig
     from .ncs.graph import TransitionGraph
     from .ncs.perception import ORACLE_STATES, OraclePerception
@@ -320,6 +372,8 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     ncs = ncs or NCSConfig()
     if method == "random":
         return lambda env: RandomAgent(env.action_space, seed)
+    if method == "random-object":
+        return lambda env: RandomObjectAgent(env, seed)
     if method in ("bc", "iql"):
         agent, kind = (BCAgent, BCPolicy) if method == "bc" else (IQLAgent, IQLNetworks)
         if not isinstance(policy, kind):

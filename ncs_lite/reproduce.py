@@ -102,6 +102,14 @@ STAGE_CODE = ("envs", "models", "ncs", "baselines", "data", "evaluation.py", "co
               "inference.py", "reproduce.py")
 
 
+def _constraints(row: dict, name: str, summary: dict) -> None:
+    """Put a summary's second measure beside its success `name` in a table row:
+    `<name>_constraints` (the mean share of constraints satisfied, `evaluation.summarize`)
+    and `<name>_constraints_ci` (its 95 % interval)."""
+    row[f"{name}_constraints"] = round(summary["constraints"], 4)
+    row[f"{name}_constraints_ci"] = f"[{summary['constraints_ci_low']:.2f}, {summary['constraints_ci_high']:.2f}]"
+
+
 def _stage(path: Path, key: dict, compute):
     """Load-or-compute for one stage of a run: reuse `path` when it was made from `key` by
     this code (`STAGE_CODE`)."""
@@ -137,7 +145,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
     first `graph_episodes` (default `comparison.graph_episodes`) episodes (`clusters` nodes)
-    and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x).
+    and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x),
+    with the share of constraints satisfied beside it (`ncs_<k>_constraints`).
     On robogym-rearrange (`env`): Table 3's slot states only, Table 4's 45 nodes, 4-7 objects,
     and per count the position oracle's and Random's success (the same for every seed). Each
     row has the seed's held-out reconstruction error (`heldout_reconstruction_error`); the
@@ -237,6 +246,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                            {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks)}, run_ncs)
                 row[f"ncs{suffix}_{k}"] = s["success"]
                 row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+                _constraints(row, f"ncs{suffix}_{k}", s)
                 row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
                 for share in ("noop", "placed", "picked_nothing", "refused"):
                     row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
@@ -320,6 +330,7 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
             name = method.replace("-", "_")
             row[f"{name}_{k}"] = s["success"]
             row[f"{name}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+            _constraints(row, f"{name}_{k}", s)
             row[f"{name}_noop_fraction_{k}"] = round(s["noop_fraction"], 3)
     return row
 
@@ -382,6 +393,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
             tasks = TaskSet(num_objects=k, episodes=episodes, seed=0)
             s = summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=base), tasks, "ncs"))[0]
             row[f"ncs_{k}"], row[f"ncs_{k}_ci"] = s["success"], f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+            _constraints(row, f"ncs_{k}", s)
             row[f"random_fraction_{k}"] = round(s["random_fraction"], 3)
             row[f"noop_fraction_{k}"] = round(s["noop_fraction"], 3)
         rows.append(row)
@@ -410,8 +422,8 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
                     out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange") -> dict:
     """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv):
-    one row per method, goal kind and object count (success, 95% Wilson interval,
-    random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
+    one row per method, goal kind and object count (success, 95% Wilson interval, the mean share
+    of constraints satisfied with its interval, random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
     the per-episode rows go beside it (`_episodes.csv`)."""
     import time
 
@@ -425,8 +437,8 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     start = time.perf_counter()
     assets = comparison_assets(preset, env=env)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
-    keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "random_fraction",
-            "noop_fraction", "mean_steps")
+    keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "constraints",
+            "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
              for r in summarize(rows)]
     write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
@@ -447,8 +459,9 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     and with NCS's restarts, and success of `ncs` (slot states, the shipped graph),
     `ncs-oracle` (positions) and `random` on `episodes` seeded tasks per count, complete
     goals (`<method>_<k>`) and partial goals (`<method>_partial_<k>`), horizon 4x, with the
-    share of steps that placed an object at its goal and that picked nothing
-    (`evaluation.step_outcome`). Each evaluation is cached by its inputs (`evaluate_method`)."""
+    share of constraints satisfied (`<method>_<k>_constraints`) and the share of steps that
+    placed an object at its goal and that picked nothing (`evaluation.step_outcome`). Each
+    evaluation is cached by its inputs (`evaluate_method`)."""
     from .config import NCSConfig, to_dict
     from .data import cached_buffer, load_buffer
     from .evaluation import TaskSet, evaluate_methods, summarize
@@ -485,6 +498,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
                 key = method.replace("-", "_") + ("" if goal == "complete" else "_partial")
                 row[f"{key}_{k}"] = s["success"]
                 row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+                _constraints(row, f"{key}_{k}", s)
                 for share in ("random", "noop", "placed", "picked_nothing"):
                     row[f"{key}_{share}_fraction_{k}"] = round(s[f"{share}_fraction"], 3)
             print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)

@@ -74,6 +74,30 @@ def test_comparison_table_gives_intervals_random_share_and_smaller_n():
     assert "from a tree with uncommitted changes" in text
 
 
+def test_the_share_of_constraints_satisfied_is_shown_where_a_table_has_it():
+    # a comparison table with `constraints`: a second table per goal kind, in docs/results.md only
+    rows = [{**r, "constraints": c, "constraints_ci_low": c - 0.05, "constraints_ci_high": min(1.0, c + 0.05)}
+            for r, c in zip(COMPARISON["rows"], (0.99, 0.8, 1.0))]
+    table = {**COMPARISON, "rows": rows}
+    text = render_table("baselines_reduced.json", table)
+    assert "*complete goals, share of constraints satisfied*" in text
+    assert "| `mpc` | 0.80 [0.75, 0.85] |" in text and "| `ncs` | 1.00 [0.95, 1.00] |" in text
+    assert "| `ncs` | 0.98 [0.90, 1.00] (7.0 % random) |" in text          # success as before
+    readme = render_results_block({"baselines_reduced.json": table})
+    assert "share of constraints satisfied: [docs/results.md]" in readme and "0.80 [0.75" not in readme
+    # an old table without them renders as before
+    assert "constraints" not in render_table("baselines_reduced.json", COMPARISON)
+    assert "constraints" not in render_results_block({"baselines_reduced.json": COMPARISON})
+    # a seeds table: its own rows with their interval, not in the headline (the share of tasks solved)
+    seeds = copy.deepcopy(SEEDS)
+    for row, c in zip(seeds["rows"], (0.95, 0.85)):
+        row.update(ncs_4_constraints=c, ncs_4_constraints_ci=f"[{c - 0.03:.2f}, {c + 0.03:.2f}]")
+    text = render_table("seeds_robogym_reduced.json", seeds)
+    line = next(x for x in text.splitlines() if x.startswith("| `ncs` on slot states, share of constraints"))
+    assert line.split(" | ")[1:] == ["0.95 [0.92, 0.98]", "0.85 [0.82, 0.88]", "0.90 ± 0.07", "0.85 (seed 1) |"]
+    assert "share of constraints" not in render_results_block({"seeds_robogym_reduced.json": seeds})
+
+
 def test_command_is_rebuilt_from_the_tables_metadata():
     assert table_command("variants/short/seeds_robogym_reduced.json", SEEDS) == (
         "python -m ncs_lite reproduce seeds --seeds 0 1 --env robogym-rearrange --set train.epochs=2 "
