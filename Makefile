@@ -14,7 +14,7 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters baselines baseline-assets clean exercises docs
+.PHONY: setup reproduce test bench seeds clusters baselines fig10 fig11 baseline-assets clean exercises docs
 
 setup: $(STAMP)
 
@@ -23,6 +23,9 @@ $(STAMP): environment.txt pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r environment.txt
+	# the optional `sweeps` extra (submitit, pinned in pyproject.toml: `--executor submitit`, and
+	# tests/test_sweeps.py runs it); environment.txt's torch pin goes along, so pip keeps that torch
+	$(PY) -m pip install --quiet -e '.[sweeps]' "$$(grep '^torch==' environment.txt)"
 	# a `python3` kernel inside the venv, found by papermill and nbmake
 	$(PY) -m ipykernel install --sys-prefix --name python3 --display-name "Python 3 (ncs-lite)"
 	touch $@
@@ -78,6 +81,15 @@ clusters: $(STAMP)
 baselines: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env robogym-rearrange
+
+# Appendix D's Figs. 10 (success against the interaction horizon) and 11 (against action noise) on
+# robogym-rearrange's shipped assets; fig11 reuses fig10's cached cells. EXECUTOR=submitit runs the
+# cells as a submitit job array (Slurm when found, else local processes).
+EXECUTOR ?= local
+fig10: $(STAMP)
+	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce fig10 --preset $(PRESET) --executor $(EXECUTOR)
+fig11: $(STAMP)
+	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce fig11 --preset $(PRESET) --executor $(EXECUTOR)
 
 # The shipped assets of the baselines and oracles, each made by one command from the buffer the
 # shipped dSLATE and graphs were made from (5000 episodes); only missing files are made.

@@ -295,6 +295,17 @@ def table_command(path: str, table: dict) -> str:
         objects = table.get("objects")
         if objects and list(objects) != DEFAULT_OBJECTS["robogym-rearrange"]:
             args += ["--objects", *map(str, objects)]
+    elif name.startswith(("fig10_", "fig11_")):
+        from .stress import TASKS
+
+        args = ["reproduce", name.split("_")[0]]
+        if preset != DEFAULT_PRESET:
+            args += ["--preset", preset]
+        sizes = TASKS.get(preset, {})
+        for key, flag, default in (("episodes", "--episodes", sizes.get("tasks")),
+                                   ("mpc_episodes", "--mpc-episodes", sizes.get("mpc"))):
+            if table.get(key) is not None and table[key] != default:
+                args += [flag, str(table[key])]
     else:
         return "(no command recorded)"
     return " ".join(["python -m ncs_lite", *args, *out_dir])
@@ -361,6 +372,32 @@ def _comparison_cell(row: dict, episodes) -> str:
     return text + (f" ({', '.join(notes)})" if notes else "")
 
 
+_VARIED = {"horizon_multiplier": ("horizon multiplier", "{:g}x"), "action_noise": ("action noise (std)", "{:g} m")}
+
+
+def _render_figure(table: dict) -> list[str]:
+    """A figure's panels (methods x the varied setting: success [95 % interval]), then its
+    claims: the statement, our number, the verdict and why."""
+    rows = table["rows"]
+    lines = []
+    for varied in dict.fromkeys(r["varied"] for r in rows):
+        title, fmt = _VARIED.get(varied, (varied, "{}"))
+        cells = {(r["method"], r["x"]): r for r in rows if r["varied"] == varied}
+        methods = list(dict.fromkeys(m for m, _ in cells))
+        xs = sorted({x for _, x in cells})
+        body = [[f"`{m}`", *(_comparison_cell(cells[m, x], table.get("episodes")) if (m, x) in cells else "–"
+                             for x in xs)] for m in methods]
+        lines += [f"*success against the {title}*", ""]
+        lines += _markdown(["method", *(fmt.format(x) for x in xs)], body) + [""]
+    lines.append("Success with its 95 % Wilson interval; in brackets the share of random actions where it is "
+                 "not 0, and the number of tasks where a method ran on fewer.")
+    claims = table.get("claims") or []
+    if claims:
+        lines += ["", "Claims:", ""]
+        lines += [f"- {c['statement']}: {c.get('ours', '')}. **{c['verdict']}** ({c['reason']})." for c in claims]
+    return lines
+
+
 def _constraints_cell(row: dict) -> str:
     if not isinstance(row.get("constraints"), (int, float)):
         return "n/a"
@@ -403,6 +440,8 @@ def _kind(table: dict) -> str:
     rows = table.get("rows") or []
     if not rows:
         return "empty"
+    if {"method", "varied", "x", "success", "ci_low", "ci_high"} <= set(rows[0]):
+        return "figure"
     if {"method", "goal", "num_objects", "success"} <= set(rows[0]):
         return "comparison"
     if "seed" in rows[0] or len(rows) == 1:
@@ -420,6 +459,12 @@ def _describe(path: str, table: dict) -> str:
         what = "NCS success against the number of graph nodes (the paper's Fig. 9, left) on the shipped checkpoint."
     elif name.startswith("robogym_"):
         what = "The shipped robogym-rearrange checkpoint and graphs measured: the type/state split, fg-ARI and success."
+    elif name.startswith("fig10_"):
+        what = ("The paper's Fig. 10 (Appendix D.2): success against the interaction horizon, NCS and the "
+                "baselines, 4 objects, complete goals; the paper's claims with our verdicts.")
+    elif name.startswith("fig11_"):
+        what = ("The paper's Fig. 11 (Appendix D.3): success against Gaussian action noise at 4x, and NCS "
+                "against the interaction horizon, 4 objects, complete goals; the paper's claims with our verdicts.")
     elif _is_seeds(name):
         what = ("The recipe trained once per seed, each seed's split, segmentation and NCS success; mean ± sd "
                 "over seeds and the worst seed.")
@@ -457,7 +502,9 @@ def render_table(path: str, table: dict) -> str:
                                                       if table.get("dirty") else " (clean tree)"))
     lines += ["; ".join(facts) + ".", ""]
     kind = _kind(table)
-    if kind == "comparison":
+    if kind == "figure":
+        lines += _render_figure(table)
+    elif kind == "comparison":
         lines += _render_comparison(table)
     elif kind == "measures":
         lines += _render_measures(table)

@@ -5,6 +5,8 @@
     clusters  NCS success against the number of graph nodes on the shipped checkpoint
     baselines every method (NCS, its oracle, NF, MPC, BC, IQL, Random) at 4..7 objects,
               complete and partial goals, on the same tasks (`ncs_lite.comparison`)
+    fig10     success against the interaction horizon, NCS and the baselines (`ncs_lite.stress`)
+    fig11     success against action noise, and NCS against the horizon (`ncs_lite.stress`)
 
 Each writes `figures/tables/<table>.csv` (one row per seed or point) and `<table>.json` (the
 rows, the summary and the provenance: commit, inputs with their hashes, parameters). Every
@@ -25,6 +27,7 @@ from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, f
                     relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
+           "fig10_table", "fig11_table",
            "mean_sd", "add_subcommand"]
 
 HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
@@ -510,22 +513,43 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     return {"rows": [row]}
 
 
+def fig10_table(*args, **kwargs) -> dict:
+    """Fig. 10: `stress.stress_table("fig10", ...)`."""
+    from .stress import stress_table
+
+    return stress_table("fig10", *args, **kwargs)
+
+
+def fig11_table(*args, **kwargs) -> dict:
+    """Fig. 11: `stress.stress_table("fig11", ...)`."""
+    from .stress import stress_table
+
+    return stress_table("fig11", *args, **kwargs)
+
+
 TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table,
-          "robogym": robogym_table}
+          "robogym": robogym_table, "fig10": fig10_table, "fig11": fig11_table}
+STRESS_TABLES = ("fig10", "fig11")
 
 
 def check_table_args(name: str, args) -> None:
     """ValueError naming the argument before any work (a table runs for minutes to hours)."""
     from .comparison import EPISODES
     from .inference import TRAIN_EPISODES
+    from .stress import TASKS
+    from .sweeps import check_executor
     from .utils import check_out_dir
 
-    presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES}.get(name)
+    presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES, "fig10": TASKS, "fig11": TASKS}.get(name)
     if presets is not None and args.preset not in presets:
         raise ValueError(f"unknown preset {args.preset!r} for the {name} table; expected one of {', '.join(presets)}")
     for flag, value in (("--episodes", args.episodes), ("--mpc-episodes", args.mpc_episodes)):
         if value is not None and value < 1:
             raise ValueError(f"{flag} must be an integer >= 1, got {value}")
+    executor = getattr(args, "executor", "local")
+    check_executor(executor)
+    if executor != "local" and name not in STRESS_TABLES:
+        raise ValueError(f"--executor is for the {' and '.join(STRESS_TABLES)} tables; the {name} table runs here")
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
     if args.objects is not None:
@@ -561,16 +585,21 @@ def run_table(name: str, args) -> dict:
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
                              checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
+    if name in STRESS_TABLES:
+        return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
+                            mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
 
 
 def add_subcommand(subparsers) -> None:
     from .training import add_run_arguments
 
-    p = subparsers.add_parser("reproduce", help="regenerate a README table (seeds, clusters, baselines, robogym)",
+    p = subparsers.add_parser("reproduce",
+                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig10, fig11)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("table", choices=sorted(TABLES))
-    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines: the assets")
+    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
+                   "the assets (and fig10, fig11: the tasks per point)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
@@ -578,9 +607,18 @@ def add_subcommand(subparsers) -> None:
     p.add_argument("--graph", help="robogym: the learned NCS graph on slot states (default: the shipped one)")
     p.add_argument("--oracle-graph", help="robogym: the position oracle's graph (default: the shipped one)")
     p.add_argument("--episodes", type=int, default=None,
-                   help="tasks per object count (default: 100; baselines: the preset's, reduced 50)")
+                   help="tasks per object count (default: 100; baselines: the preset's, reduced 50); fig10, fig11: "
+                   "tasks per point (default: the preset's, ncs_lite.stress.TASKS)")
     p.add_argument("--mpc-episodes", type=int, default=None,
-                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 25)")
+                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 25); fig10, "
+                   "fig11: MPC's tasks per point")
+    p.add_argument("--executor", default="local",
+                   help="fig10, fig11: where the sweep's jobs run: local (this machine's worker processes) or "
+                   "submitit (a Slurm job array when Slurm is found, else local processes; needs the "
+                   "`sweeps` extra)")
+    p.add_argument("--sweep-folder", default=None,
+                   help="fig10, fig11 with --executor submitit: the jobs' pickles and logs (default: "
+                   "<cache>/submitit/<job id>)")
     p.add_argument("--env", default="block-rearrange", help="seeds: the environment to train on; baselines: "
                    "the environment (its shipped assets)")
     p.add_argument("--objects", type=int, nargs="+", default=None,
