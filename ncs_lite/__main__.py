@@ -34,7 +34,7 @@ def _graph(args):
     from .data import manifest_hash
     from .inference import load_dslate
     from .ncs.graph import build_graph
-    from .ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
+    from .ncs.perception import buffer_transitions, graph_perception, slot_read
     from .utils import check_file_env, check_out_file, provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
@@ -51,9 +51,7 @@ def _graph(args):
     if model is not None:
         check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
     made = provenance(args.out, args.allow_dirty)
-    perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(model, iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
+    perception = graph_perception(cfg, model)
     states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
     graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
                         seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info

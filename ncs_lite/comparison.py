@@ -66,12 +66,13 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
 
     from .baselines import SetGraph, set_graph_from_transitions
     from .baselines.runs import load_trained_policy, obtain_policy
-    from .config import NCSConfig
+    from .config import NCSConfig, to_dict
     from .data import cached_buffer
     from .evaluation import learned_perception
     from .inference import load_dslate, obtain_dslate, shipped_asset
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-    from .ncs.perception import ORACLE_STATES, OraclePerception, buffer_transitions, slot_read
+    from .ncs.perception import buffer_transitions, graph_perception, slot_read
+    from .utils import relative_to_repo
 
     if env not in STATE_BY_ENV:
         raise ValueError(f"env must be one of {sorted(STATE_BY_ENV)}, got {env!r}")
@@ -96,12 +97,14 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset,
            "env": env, "ncs": ncs}
     # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
-    read = learned_perception(model, 4, replace(ncs, restarts=ncs.graph_restarts))   # as `graph` reads the buffer
-    for name, perception in (("", read), ("oracle_", OraclePerception(ORACLE_STATES[state]))):
+    slots = learned_perception(model, 4, ncs).num_slots
+    for name, reader in (("", model), ("oracle_", None)):
+        perception = graph_perception(ncs, reader, num_slots=slots)
         st, st1, acts, true = buffer_transitions(perception, data)
         graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
                             edge_action=ncs.edge_action)
-        graph.info.update(env=env, **slot_read(perception))
+        graph.info.update(env=env, data=relative_to_repo(data), ncs=to_dict(ncs), **slot_read(perception),
+                          **({"read_slots": slots} if reader is not None else {}))
         out[f"{name}graph"] = graph
         out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph, state=state)
         out[f"nf_{name}graph"].info["env"] = env

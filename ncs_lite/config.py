@@ -380,6 +380,8 @@ class NCSConfig:
     graph_restarts: int = 8     # ... per frame when `graph` and `graph-nf` read the buffer's videos
     iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
     extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
+    slots: int | None = None    # slots an agent reads every scene with, whatever its object count
+    #                             (Fig. 9's slot axis); None = objects + extra_slots as above
     seed: int = 0               # k-means seed
     state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
@@ -404,9 +406,9 @@ class NCSConfig:
 
     def validate(self) -> "NCSConfig":
         for name, low in (("clusters", 1), ("restarts", 1), ("graph_restarts", 1), ("iterations", 1),
-                          ("extra_slots", 0), ("seed", 0)):
+                          ("extra_slots", 0), ("slots", 1), ("seed", 0)):
             value = getattr(self, name)
-            if name == "restarts" and value is None:      # the env's default
+            if name in ("restarts", "slots") and value is None:      # the env's default; objects + extra
                 continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"ncs.{name} must be an integer >= {low}, got {value!r}")

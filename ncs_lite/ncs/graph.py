@@ -354,8 +354,13 @@ class TransitionGraph:
 
     @classmethod
     def load(cls, path: str | Path) -> "TransitionGraph":
-        sd = check_graph_file(load_tensor_file(path, "transition graph", "build one with `python -m ncs_lite graph`"),
-                              path, GRAPH_KIND, "transition graph")
+        return cls.from_state_dict(load_tensor_file(path, "transition graph",
+                                                    "build one with `python -m ncs_lite graph`"), path)
+
+    @classmethod
+    def from_state_dict(cls, sd: dict, path: str | Path = "a state dict") -> "TransitionGraph":
+        """The graph `state_dict` gave (checked: kind, format, shapes and content digest)."""
+        sd = check_graph_file(sd, path, GRAPH_KIND, "transition graph")
         graph = cls(sd["centroids"], sd["bind_metric"], {}, sd["info"])
         if "edge_before" in sd:
             graph.examples = {}

@@ -244,6 +244,17 @@ class DSlatePerception:
                 "batch_size": self.batch_size, "grid": STATE_GRID}
 
 
+def graph_perception(ncs, model=None, num_slots: int | None = None):
+    """How a graph reads its buffer's frames (`python -m ncs_lite graph`): `model`'s entities
+    with `ncs.graph_restarts` restarts, its iterations, state and slot position and
+    `num_slots` slots (None: the model's K), or, with no model, ground truth (the oracle's
+    stand-in for `ncs.state`, ORACLE_STATES)."""
+    if model is None:
+        return OraclePerception(ORACLE_STATES[ncs.state])
+    return DSlatePerception(model, iterations=ncs.iterations, num_slots=num_slots, restarts=ncs.graph_restarts,
+                            state=ncs.state, slot_position=ncs.slot_position)
+
+
 def slot_read(perception) -> dict:
     """What a graph built from `perception` records of how it read slot states, so an agent
     that reads them another way is refused (`evaluation.check_graph_reading`): {} unless
