@@ -14,7 +14,7 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters baselines fig10 fig11 baseline-assets clean exercises docs
+.PHONY: setup reproduce test bench seeds clusters baselines fig9 fig10 fig11 baseline-assets clean exercises docs
 
 setup: $(STAMP)
 
@@ -82,10 +82,12 @@ baselines: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env robogym-rearrange
 
-# Appendix D's Figs. 10 (success against the interaction horizon) and 11 (against action noise) on
+# Appendix D's Figs. 9 (NCS against its hyperparameters), 10 (success against the interaction horizon) and 11 (against action noise) on
 # robogym-rearrange's shipped assets; fig11 reuses fig10's cached cells. EXECUTOR=submitit runs the
 # cells as a submitit job array (Slurm when found, else local processes).
 EXECUTOR ?= local
+fig9: $(STAMP)
+	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce fig9 --preset $(PRESET) --executor $(EXECUTOR)
 fig10: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce fig10 --preset $(PRESET) --executor $(EXECUTOR)
 fig11: $(STAMP)

@@ -152,7 +152,7 @@ def _evaluate(method: str, tasks, kwargs: dict) -> dict:
     return summarize(evaluate_method(method, tasks, **kwargs))[0]
 
 
-def fig9_table(preset: str = "reduced", executor: str = "local", seed: int = 0, out_dir=None,
+def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, seed: int = 0, out_dir=None,
                allow_dirty: bool = False) -> dict:
     """figures/tables/fig9_<preset>.csv / .json: one row per axis (`varied`), value (`x`) and method (success
     and its 95% Wilson interval, the mean share of constraints satisfied when the harness
@@ -162,7 +162,8 @@ def fig9_table(preset: str = "reduced", executor: str = "local", seed: int = 0, 
 
     from .comparison import comparison_assets
     from .config import to_dict
-    from .reproduce import _table_dir, provenance, write_table
+    from .reproduce import _table_dir, write_table
+    from .utils import provenance, relative_to_repo
     from .sweeps import check_executor, run_sweep
 
     check_executor(executor)
@@ -173,7 +174,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", seed: int = 0, 
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = fig9_jobs(assets, preset, seed)
-    summaries = run_sweep(_evaluate, jobs, executor=executor)
+    summaries = run_sweep(_evaluate, jobs, executor=executor, folder=folder)
     rows = []
     for point, s in zip(points, summaries):
         row = {**point, "episodes": s["episodes"], "successes": round(s["success"] * s["episodes"]),
@@ -185,7 +186,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", seed: int = 0, 
     meta = {"env": ENV, "preset": preset, "num_objects": OBJECTS, "goal": "complete", "horizon_multiplier": 4.0,
             "tasks_per_point": TASKS[preset], "axes": {a: list(v) for a, v in AXES[preset].items()},
             "ncs": to_dict(assets["ncs"]), "executor": executor, "claims": fig9_claims(rows),
-            "assets": {k: v for k, v in assets["paths"].items()},
+            "assets": {k: relative_to_repo(v) for k, v in assets["paths"].items()},
             "minutes": round((time.perf_counter() - start) / 60, 1)}
     write_table(name, rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "claims": meta["claims"], "minutes": meta["minutes"]}

@@ -5,6 +5,7 @@
     clusters  NCS success against the number of graph nodes on the shipped checkpoint
     baselines every method (NCS, its oracle, NF, MPC, BC, IQL, Random) at 4..7 objects,
               complete and partial goals, on the same tasks (`ncs_lite.comparison`)
+    fig9      NCS against its clusters, graph data and slots (`ncs_lite.hyperparameters`)
     fig10     success against the interaction horizon, NCS and the baselines (`ncs_lite.stress`)
     fig11     success against action noise, and NCS against the horizon (`ncs_lite.stress`)
 
@@ -27,7 +28,7 @@ from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, f
                     relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
-           "fig10_table", "fig11_table",
+           "fig9_table", "fig10_table", "fig11_table",
            "mean_sd", "add_subcommand"]
 
 HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
@@ -513,6 +514,13 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     return {"rows": [row]}
 
 
+def fig9_table(*args, **kwargs) -> dict:
+    """Fig. 9: `hyperparameters.fig9_table(...)`."""
+    from .hyperparameters import fig9_table as table
+
+    return table(*args, **kwargs)
+
+
 def fig10_table(*args, **kwargs) -> dict:
     """Fig. 10: `stress.stress_table("fig10", ...)`."""
     from .stress import stress_table
@@ -528,8 +536,9 @@ def fig11_table(*args, **kwargs) -> dict:
 
 
 TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table,
-          "robogym": robogym_table, "fig10": fig10_table, "fig11": fig11_table}
+          "robogym": robogym_table, "fig9": fig9_table, "fig10": fig10_table, "fig11": fig11_table}
 STRESS_TABLES = ("fig10", "fig11")
+SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 
 
 def check_table_args(name: str, args) -> None:
@@ -540,7 +549,9 @@ def check_table_args(name: str, args) -> None:
     from .sweeps import check_executor
     from .utils import check_out_dir
 
-    presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES, "fig10": TASKS, "fig11": TASKS}.get(name)
+    from .hyperparameters import AXES
+
+    presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES, "fig9": AXES, "fig10": TASKS, "fig11": TASKS}.get(name)
     if presets is not None and args.preset not in presets:
         raise ValueError(f"unknown preset {args.preset!r} for the {name} table; expected one of {', '.join(presets)}")
     for flag, value in (("--episodes", args.episodes), ("--mpc-episodes", args.mpc_episodes)):
@@ -548,8 +559,10 @@ def check_table_args(name: str, args) -> None:
             raise ValueError(f"{flag} must be an integer >= 1, got {value}")
     executor = getattr(args, "executor", "local")
     check_executor(executor)
-    if executor != "local" and name not in STRESS_TABLES:
-        raise ValueError(f"--executor is for the {' and '.join(STRESS_TABLES)} tables; the {name} table runs here")
+    if executor != "local" and name not in SWEEP_TABLES:
+        raise ValueError(f"--executor is for the {', '.join(SWEEP_TABLES)} tables; the {name} table runs here")
+    if name == "fig9" and (args.episodes is not None or args.mpc_episodes is not None):
+        raise ValueError("--episodes and --mpc-episodes are for the other tables; fig9 runs its preset's tasks per point")
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
     if args.objects is not None:
@@ -585,6 +598,9 @@ def run_table(name: str, args) -> dict:
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
                              checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
+    if name == "fig9":
+        return fig9_table(args.preset, executor=args.executor, folder=args.sweep_folder, out_dir=args.out_dir,
+                          allow_dirty=args.allow_dirty)
     if name in STRESS_TABLES:
         return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
                             mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
@@ -595,7 +611,7 @@ def add_subcommand(subparsers) -> None:
     from .training import add_run_arguments
 
     p = subparsers.add_parser("reproduce",
-                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig10, fig11)",
+                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig9, fig10, fig11)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("table", choices=sorted(TABLES))
     p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
