@@ -269,7 +269,11 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
         (["reproduce", "seeds", "--preset", "ci", "--set", "ncs.restarts=0", "--runs", str(tmp_path)],
          "ncs.restarts must be an integer >= 1, got 0"),
         (["reproduce", "baselines", "--env", "bogus"], "unknown --env 'bogus'; expected one of block-rearrange"),
-        (["reproduce", "clusters", "--env", "robogym-rearrange"], "--env is for the seeds and baselines tables"),
+        (["reproduce", "clusters", "--env", "robogym-rearrange"],
+         "the clusters table does not read --env; it reads --checkpoint, --episodes"),
+        (["reproduce", "robogym", "--set", "ncs.clusters=9"], "the robogym table does not read --set"),
+        (["reproduce", "baselines", "--objects", "4"], "the baselines table does not read --objects"),
+        (["reproduce", "seeds", "--seeds", "0", "0"], "--seeds must be distinct, got [0, 0]"),
         (["reproduce", "clusters", "--out-dir", str(afile)], f"--out-dir {afile} is a file; expected a table directory"),
         (["bench", "envs", "--out", str(tmp_path)], f"--out {tmp_path} is a directory; expected the path of a JSON file"),
     ]
