@@ -274,6 +274,10 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
         (["reproduce", "robogym", "--set", "ncs.clusters=9"], "the robogym table does not read --set"),
         (["reproduce", "baselines", "--objects", "4"], "the baselines table does not read --objects"),
         (["reproduce", "seeds", "--seeds", "0", "0"], "--seeds must be distinct, got [0, 0]"),
+        (["evaluate", "--method", "random", "--set", "ncs.clusters=99", "--episodes", "1"],
+         "--set ncs.clusters=99: evaluate reads a built graph"),
+        (["graph", "--oracle", "--clusters", "4", "--set", "ncs.clusters=6", "--data", buf, "--out",
+          str(tmp_path / "g46.pt")], "give the number of nodes once: --clusters 4 or --set ncs.clusters=N"),
         (["reproduce", "clusters", "--out-dir", str(afile)], f"--out-dir {afile} is a file; expected a table directory"),
         (["bench", "envs", "--out", str(tmp_path)], f"--out {tmp_path} is a directory; expected the path of a JSON file"),
     ]
