@@ -14,7 +14,8 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters baselines baseline-assets clean exercises docs classroom-check
+.PHONY: setup reproduce test bench seeds clusters baselines baseline-assets clean exercises docs book book-check \
+  classroom-check
 
 setup: $(STAMP)
 
@@ -167,9 +168,19 @@ docs: $(STAMP)
 exercises: $(STAMP)
 	$(PY) -m ncs_lite.exercises --out exercises
 
-# A browser check in headless Chromium, not part of `make test` (it needs selenium and Chromium:
-# scripts/browser.py says how to install them): a student's JupyterLab session (run all, solve an
-# exercise, save, reopen) leaves the kit clean.
+# A static site of the README, docs/ and the notebooks that `make reproduce` executed
+# ($(BUILD)/notebooks/), figures inline: $(BUILD)/book/index.html. Without executed notebooks it
+# says which command makes them; a notebook not executed yet is shown without outputs.
+book: $(STAMP)
+	$(PY) -m ncs_lite.book --notebooks $(BUILD)/notebooks --out $(BUILD)/book
+
+# Browser checks in headless Chromium, not part of `make test` (they need selenium and Chromium:
+# scripts/browser.py says how to install them). book-check: every page of the book loads, every
+# image is drawn, no broken internal link, no console error. classroom-check: a student's
+# JupyterLab session (run all, solve an exercise, save, reopen) leaves the kit clean.
+book-check: $(STAMP)
+	$(PY) scripts/check_book.py $(BUILD)/book
+
 classroom-check: $(STAMP)
 	$(PY) scripts/check_classroom.py
 
