@@ -14,7 +14,7 @@ own commands (`--expose-app-in-browser`: the commands a student's clicks run):
    yet the kit sees no change: `dirty_files()` is empty and `python -m ncs_lite.exercises
    --check` passes;
 3. writes a wrong answer into exercise 1 and runs all: the check cell shows the one-line
-   verdict `✗ ...` and Run All stops there;
+   verdict `✗ ...` and Run All stops there (for the notebooks in WRONG, 01_environments);
 4. writes the right answer, runs all: "✓ ..." with no `Out[n]`, Run All stops at exercise
    2; no printed absolute path, no "0 episodes" bar; saves, closes, reopens: the answer and
    its verdict are there and the notebook is not modified;

@@ -140,10 +140,15 @@ def test_an_unsolved_stub_shows_two_lines_and_stays_a_not_implemented_error():
         "NotImplementedError: Exercise 1: add x to itself"]
 
 
-def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys):
+def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys, tmp_path, monkeypatch):
     """What a student sees: IPython's shell renders the failing check as the verdict line."""
     shell_module = pytest.importorskip("IPython.core.interactiveshell")
-    shell = shell_module.InteractiveShell.instance()
+    from traitlets.config import Config
+
+    monkeypatch.setenv("IPYTHONDIR", str(tmp_path))          # no profile or history in $HOME
+    config = Config()
+    config.HistoryManager.enabled = False
+    shell = shell_module.InteractiveShell.instance(config=config)
     try:
         shell.run_cell("from ncs_lite.exercises import check\n"
                        "check('double', lambda x: 3 * x, lambda x: x + x, [2])")
