@@ -202,7 +202,10 @@ def make_copy(nb, name: str, kind: str) -> dict:
         else:
             middle = solution
         _set_source(cell, "\n".join(before + middle + after))
-    nb["cells"].insert(0, _banner(name, kind))
+    banner = _banner(name, kind)
+    if nb.get("nbformat_minor", 0) >= 5:          # nbformat 4.5 gives every cell an id
+        banner["id"] = f"{kind}-banner"
+    nb["cells"].insert(0, banner)
     return nb
 
 
