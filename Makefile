@@ -14,7 +14,8 @@ SEEDS    ?= 0 1 2
 # (another thread count changes torch's floating-point order, and with it a result or two)
 THREADS  ?= 1
 
-.PHONY: setup reproduce test bench seeds clusters baselines fig9 fig10 fig11 baseline-assets clean exercises docs
+.PHONY: setup reproduce test bench seeds clusters baselines fig9 fig10 fig11 baseline-assets clean exercises docs \
+  book book-check classroom-check
 
 setup: $(STAMP)
 
@@ -32,10 +33,13 @@ $(STAMP): environment.txt pyproject.toml
 
 # Main job: every notebook through papermill at the `reduced` preset; figures -> figures/.
 # Committed figures name a clean commit, so a tree with uncommitted changes is refused
-# (ALLOW_DIRTY=1 writes anyway and records "dirty": true in each figure's JSON).
+# (ALLOW_DIRTY=1 writes anyway and records "dirty": true in each figure's JSON). The changes are
+# those `ncs_lite.utils.dirty_files` sees: generated text aside, and a notebook only when its
+# cells changed (a notebook run and saved in JupyterLab has new outputs, not new code).
 reproduce: $(STAMP)
-	@if [ "$(ALLOW_DIRTY)" != 1 ] && [ -n "$$(git status --porcelain --untracked-files=no -- . ":!figures" ":!README.md" ":!docs" 2>/dev/null)" ]; then \
-	  echo "make reproduce: the tree has uncommitted changes; commit first (figures record their commit) or pass ALLOW_DIRTY=1"; \
+	@if [ "$(ALLOW_DIRTY)" != 1 ] && ! $(PY) -c "import sys; from ncs_lite.utils import dirty_files; \
+	  d = dirty_files(); d and print('make reproduce: uncommitted changes in', ', '.join(d)); sys.exit(bool(d))"; then \
+	  echo "make reproduce: commit first (figures record their commit) or pass ALLOW_DIRTY=1"; \
 	  exit 2; fi
 	mkdir -p $(BUILD)/notebooks
 	for nb in $(NOTEBOOKS); do \
@@ -183,6 +187,22 @@ docs: $(STAMP)
 # notebooks/; deterministic, so a rerun changes nothing (tests/test_exercises.py checks it).
 exercises: $(STAMP)
 	$(PY) -m ncs_lite.exercises --out exercises
+
+# A static site of the README, docs/ and the notebooks that `make reproduce` executed
+# ($(BUILD)/notebooks/), figures inline: $(BUILD)/book/index.html. Without executed notebooks it
+# says which command makes them; a notebook not executed yet is shown without outputs.
+book: $(STAMP)
+	$(PY) -m ncs_lite.book --notebooks $(BUILD)/notebooks --out $(BUILD)/book
+
+# Browser checks in headless Chromium, not part of `make test` (they need selenium and Chromium:
+# scripts/browser.py says how to install them). book-check: every page of the book loads, every
+# image is drawn, no broken internal link, no console error. classroom-check: a student's
+# JupyterLab session (run all, solve an exercise, save, reopen) leaves the kit clean.
+book-check: $(STAMP)
+	$(PY) scripts/check_book.py $(BUILD)/book
+
+classroom-check: $(STAMP)
+	$(PY) scripts/check_classroom.py
 
 clean:
 	rm -rf $(BUILD)

@@ -44,6 +44,9 @@ def _graph(args):
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
 
     env = load_manifest(args.data)["env"]["env"]          # Tables 3-4 give each env's defaults
+    if args.clusters is not None and any(o.split("=", 1)[0].strip() == "ncs.clusters" for o in args.overrides):
+        raise ValueError(f"give the number of nodes once: --clusters {args.clusters} or --set ncs.clusters=N, "
+                         "not both")
     clusters = args.clusters if args.clusters is not None else CLUSTERS_BY_ENV.get(env)   # 0 is refused
     cfg = ncs_config(args.overrides, clusters=clusters, seed=args.seed,
                      state=args.state or STATE_BY_ENV.get(env), edge_action=EDGE_ACTION_BY_ENV.get(env))
@@ -63,6 +66,10 @@ def _graph(args):
     graph.save(args.out)
     print(json.dumps({"out": args.out, "state": graph.state, "nodes": graph.num_nodes,
                       "edges": graph.num_edges, "coverage": graph.info.get("coverage")}))
+
+
+# NCSConfig fields that only building a graph reads (`graph`), never an agent acting on one
+GRAPH_BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
 
 
 def _evaluate(args):
@@ -85,6 +92,11 @@ def _evaluate(args):
         if path is not None and args.method in NEEDS and need not in needs:
             reads = " and ".join(f"a {NEED_NAMES[n]}" for n in needs) or "no file"
             raise ValueError(f"method {args.method!r} reads no {NEED_NAMES[need]}, got {path}; it reads {reads}")
+    built = [o for o in sections["ncs"] if parse_override(o)[0] in GRAPH_BUILD_FIELDS]
+    if built:                                   # fields of how a graph is built, which acting never reads
+        raise ValueError(f"--set {built[0]}: evaluate reads a built graph (its nodes, k-means seed and buffer "
+                         f"pass are fixed); set {', '.join(GRAPH_BUILD_FIELDS)} when building it "
+                         "(python -m ncs_lite graph)")
     if sections["mpc"] and args.method != "mpc":
         raise ValueError(f"--set {sections['mpc'][0]}: mpc fields set MPC's planner; method {args.method!r} has none")
     asked = args.state or next((parse_override(o)[1] for o in sections["ncs"]

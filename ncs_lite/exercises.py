@@ -13,7 +13,9 @@ solutions, so the student copy can never drift from the master:
                                   `raise NotImplementedError("Exercise N: <hint>")`
   exercises/solutions/NN_*.ipynb  the master with the markers removed
 both without outputs, byte-identical on a rerun. `--check` only compares and exits 1 when
-`exercises/` is out of date.
+`exercises/` is out of date: it compares cells (type, source, tags: `utils.notebook_content`),
+not bytes, so a copy that was opened, run and saved in JupyterLab, with its outputs and the
+kernel's metadata, is still current.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .utils import REPO_DIR
+from .utils import REPO_DIR, notebook_content, relative_to_repo
 
 BEGIN, END, TAG = "# BEGIN SOLUTION", "# END SOLUTION", "exercise"
 MASTERS = REPO_DIR / "notebooks"
@@ -79,28 +81,43 @@ def same(got, expected, rtol: float = 1e-5, atol: float = 1e-6) -> str | None:
     return None
 
 
-def check(name: str, student, reference, inputs, rtol: float = 1e-5, atol: float = 1e-6) -> bool:
+class WrongAnswer(AssertionError):
+    """A self-check's verdict on a wrong answer. It is an AssertionError, so Run All stops at
+    it and nbmake fails a broken master; in a notebook IPython shows it as its one verdict
+    line (`_render_traceback_`), not as a traceback through this module."""
+
+    def _render_traceback_(self) -> list[str]:
+        return [str(self)]
+
+
+def _one_line(error: BaseException, *lines: str) -> BaseException:
+    """`error`, shown by IPython as `lines` plus its own `Type: message` line instead of a
+    traceback (the class, and so what `except` and nbclient see, is unchanged)."""
+    shown = [*lines, f"{type(error).__name__}: {error}"]
+    error._render_traceback_ = lambda: shown
+    return error
+
+
+def check(name: str, student, reference, inputs, rtol: float = 1e-5, atol: float = 1e-6) -> None:
     """Compare `student(*args)` with `reference(*args)` (the library) for every `args` in
     `inputs` (a tuple of arguments, or a single argument). Prints "✓ name: correct ..." and
-    returns True, or prints what was expected and raises AssertionError, so a wrong master
-    fails under nbmake. An unsolved stub's NotImplementedError passes through, with a note."""
+    returns None (so a check cell leaves no `Out[n]`), or raises WrongAnswer, whose one line
+    says what was expected, so Run All stops there and a wrong master fails under nbmake. An
+    unsolved stub's NotImplementedError passes through, shown as two lines: a note and its hint."""
     inputs = list(inputs)
     for args in inputs:
         args = args if isinstance(args, tuple) else (args,)
         expected = reference(*copy.deepcopy(args))
         try:
             got = student(*copy.deepcopy(args))
-        except NotImplementedError:
-            print(f"… {name}: not solved yet; write the function in the cell above, then rerun both cells")
-            raise
+        except NotImplementedError as e:
+            raise _one_line(e, f"… {name}: not solved yet; write the function in the cell above, "
+                               "then rerun both cells") from None
         why = same(got, expected, rtol, atol)
         if why:
-            message = (f"✗ {name}: for input {', '.join(_short(a, 80) for a in args)} expected {_short(expected)}, "
-                       f"got {_short(got)} ({why})")
-            print(message)
-            raise AssertionError(message)
+            raise WrongAnswer(f"✗ {name}: for input {', '.join(_short(a, 80) for a in args)} expected "
+                              f"{_short(expected)}, got {_short(got)} ({why})")
     print(f"✓ {name}: correct on {len(inputs)} input(s), same as the library")
-    return True
 
 
 # ----------------------------------------------------------------------------- generator
@@ -185,7 +202,10 @@ def make_copy(nb, name: str, kind: str) -> dict:
         else:
             middle = solution
         _set_source(cell, "\n".join(before + middle + after))
-    nb["cells"].insert(0, _banner(name, kind))
+    banner = _banner(name, kind)
+    if nb.get("nbformat_minor", 0) >= 5:          # nbformat 4.5 gives every cell an id
+        banner["id"] = f"{kind}-banner"
+    nb["cells"].insert(0, banner)
     return nb
 
 
@@ -210,22 +230,40 @@ def generate(out: Path = OUT, folder: Path = MASTERS) -> dict[Path, str]:
     return files
 
 
+def first_difference(current: str, generated: str) -> str:
+    """Where a copy's cells first differ from the generated ones, for a one-line message."""
+    have, want = notebook_content(current), notebook_content(generated)
+    if have is None:
+        return "not a readable notebook"
+    for i, (a, b) in enumerate(zip(have, want)):
+        if a != b:
+            return f"cell {i} ({b[0]}) is not the one `make exercises` writes"
+    return f"{len(have)} cells, `make exercises` writes {len(want)}" if len(have) != len(want) else "same cells"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m ncs_lite.exercises", description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=OUT, help="output folder (default: exercises/)")
-    parser.add_argument("--check", action="store_true", help="compare only; exit 1 if out of date")
+    parser.add_argument("--check", action="store_true",
+                        help="compare cells only (not outputs or metadata); exit 1 if out of date")
     args = parser.parse_args(argv)
     files = generate(args.out)
-    stale = [p for p, text in files.items() if not p.exists() or p.read_text(encoding="utf-8") != text]
     if args.check:
-        for p in stale:
-            print(f"out of date: {p}")
+        stale = {}
+        for p, text in files.items():
+            current = p.read_text(encoding="utf-8") if p.exists() else None
+            if current is None:
+                stale[p] = "missing (`make exercises` writes it)"
+            elif notebook_content(current) != notebook_content(text):
+                stale[p] = first_difference(current, text)
+        for p, why in stale.items():
+            print(f"out of date: {relative_to_repo(p)}: {why}")
         return 1 if stale else 0
-    for p, text in files.items():
-        if p in stale:
-            p.parent.mkdir(parents=True, exist_ok=True)
-            p.write_text(text, encoding="utf-8")
-    print(f"{len(files)} notebooks in {args.out} ({len(stale)} rewritten)")
+    stale = [p for p, text in files.items() if not p.exists() or p.read_text(encoding="utf-8") != text]
+    for p in stale:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(files[p], encoding="utf-8")
+    print(f"{len(files)} notebooks in {relative_to_repo(args.out)} ({len(stale)} rewritten)")
     return 0
 
 

@@ -541,15 +541,30 @@ STRESS_TABLES = ("fig10", "fig11")
 SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 
 
+# the options each table reads (`reproduce <table> --help`); any other one given is refused,
+# never silently ignored. FLAG_DEFAULTS: the parser's defaults, i.e. "not given"
+TABLE_FLAGS = {
+    "seeds": ("preset", "seeds", "runs", "overrides", "episodes", "env", "objects"),
+    "clusters": ("checkpoint", "episodes"),
+    "baselines": ("preset", "episodes", "mpc_episodes", "env"),
+    "robogym": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
+    "fig9": ("preset", "executor", "sweep_folder"),
+    "fig10": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
+    "fig11": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
+}
+FLAG_DEFAULTS = {"preset": "reduced", "seeds": [0, 1, 2], "runs": None, "checkpoint": None, "graph": None,
+                 "oracle_graph": None, "episodes": None, "mpc_episodes": None, "executor": "local",
+                 "sweep_folder": None, "env": "block-rearrange", "objects": None, "overrides": []}
+
+
 def check_table_args(name: str, args) -> None:
     """ValueError naming the argument before any work (a table runs for minutes to hours)."""
     from .comparison import EPISODES
+    from .hyperparameters import AXES
     from .inference import TRAIN_EPISODES
     from .stress import TASKS
     from .sweeps import check_executor
     from .utils import check_out_dir
-
-    from .hyperparameters import AXES
 
     presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES, "fig9": AXES, "fig10": TASKS, "fig11": TASKS}.get(name)
     if presets is not None and args.preset not in presets:
@@ -557,12 +572,16 @@ def check_table_args(name: str, args) -> None:
     for flag, value in (("--episodes", args.episodes), ("--mpc-episodes", args.mpc_episodes)):
         if value is not None and value < 1:
             raise ValueError(f"{flag} must be an integer >= 1, got {value}")
-    executor = getattr(args, "executor", "local")
-    check_executor(executor)
-    if executor != "local" and name not in SWEEP_TABLES:
-        raise ValueError(f"--executor is for the {', '.join(SWEEP_TABLES)} tables; the {name} table runs here")
-    if name == "fig9" and (args.episodes is not None or args.mpc_episodes is not None):
-        raise ValueError("--episodes and --mpc-episodes are for the other tables; fig9 runs its preset's tasks per point")
+    check_executor(getattr(args, "executor", "local"))
+    given = [flag for flag, default in FLAG_DEFAULTS.items() if getattr(args, flag, default) != default]
+    ignored = [flag for flag in given if flag not in TABLE_FLAGS[name]]
+    if ignored:
+        shown = ", ".join("--" + f.replace("_", "-") for f in ignored).replace("--overrides", "--set")
+        reads = ", ".join("--" + f.replace("_", "-") for f in TABLE_FLAGS[name]).replace("--overrides", "--set")
+        raise ValueError(f"the {name} table does not read {shown}; it reads {reads or 'none of the options'} "
+                         f"(and --out-dir, --allow-dirty)")
+    if len(set(args.seeds)) != len(args.seeds):
+        raise ValueError(f"--seeds must be distinct, got {args.seeds}")
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
     if args.objects is not None:
@@ -577,8 +596,6 @@ def check_table_args(name: str, args) -> None:
 
     if args.env not in STATE_BY_ENV:
         raise ValueError(f"unknown --env {args.env!r}; expected one of {', '.join(STATE_BY_ENV)}")
-    if args.env != "block-rearrange" and name not in ("baselines", "seeds"):
-        raise ValueError(f"--env is for the seeds and baselines tables; the {name} table has its own environment")
     if args.out_dir is not None:
         check_out_dir(args.out_dir, "table", flag="--out-dir")
 

@@ -288,15 +288,66 @@ def dirty_files() -> list[str]:
     """Tracked files with uncommitted changes ([] outside git), the generated text aside:
     figures/, README.md and docs/ are outputs (`python -m ncs_lite.docs` rewrites the README's
     result blocks and docs/results.md whenever a table or a notebook time is written, while
-    `make reproduce` runs), and none of them changes what the code does."""
+    `make reproduce` runs), and none of them changes what the code does. A notebook whose
+    cells are those of the commit (`notebook_content`) is not changed either: opening, running
+    and saving it in JupyterLab rewrites its outputs and metadata, not what it runs."""
     try:
-        lines = _git("status", "--porcelain", "--untracked-files=no").splitlines()
+        out = _git("status", "--porcelain", "-z", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
         return []
-    return [p for p in (line[3:] for line in lines) if not p.startswith(GENERATED_TEXT)]
+    changed = []
+    entries = iter(out.split("\0"))
+    for entry in entries:
+        if not entry:
+            continue
+        status, path = entry[:2], entry[3:]
+        if "R" in status or "C" in status:
+            next(entries, None)              # -z gives a rename's old path as the next entry
+        if path.startswith(GENERATED_TEXT):
+            continue
+        if status.strip() == "M" and path.endswith(".ipynb") and _same_cells_as_head(path):
+            continue
+        changed.append(path)
+    return changed
 
 
 GENERATED_TEXT = ("figures/", "README.md", "docs/")     # outputs, not code (dirty_files)
+
+
+def notebook_content(text: str) -> list[tuple[str, str, tuple[str, ...]]] | None:
+    """What a notebook is to the kit, from its JSON text: (type, source, tags) of each cell,
+    in order (the tags mark the `parameters` cell and the exercises); None when `text` is not
+    a notebook. Outputs, execution counts, cell ids and the metadata a kernel or JupyterLab
+    writes (language_info, widths, collapsed cells) are left out: they change on every run."""
+    try:
+        nb = json.loads(text)
+        cells = nb["cells"]
+        out = []
+        for cell in cells:
+            source = cell.get("source", "")
+            tags = (cell.get("metadata") or {}).get("tags") or []
+            out.append((str(cell["cell_type"]), "".join(source) if isinstance(source, list) else str(source),
+                        tuple(sorted(map(str, tags)))))
+        return out
+    except (ValueError, TypeError, KeyError, AttributeError):
+        return None
+
+
+def same_notebook(a: str, b: str) -> bool:
+    """Whether two notebook texts run the same cells (`notebook_content`); two texts that are
+    not notebooks are the same only byte for byte."""
+    ca, cb = notebook_content(a), notebook_content(b)
+    return a == b if ca is None or cb is None else ca == cb
+
+
+def _same_cells_as_head(path: str) -> bool:
+    try:
+        committed = subprocess.run(["git", "show", f"HEAD:{path}"], cwd=REPO_DIR, capture_output=True,
+                                   encoding="utf-8", timeout=5, check=True).stdout
+        current = (REPO_DIR / path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError, subprocess.SubprocessError):
+        return False
+    return same_notebook(committed, current)
 
 
 def git_commit() -> str:

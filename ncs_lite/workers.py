@@ -59,11 +59,19 @@ def _run_job(fn: Callable, job: tuple) -> tuple[Any, str]:
     return result, printed.getvalue()
 
 
+def _is_empty(job: tuple) -> bool:
+    """A job whose arguments are all empty sequences (a list of no shards) has nothing to do."""
+    return bool(job) and all(isinstance(a, (list, tuple)) and not a for a in job)
+
+
 def map_jobs(fn: Callable, jobs: Sequence[tuple], shared=None, workers: int | None = None,
              desc: str | None = None, first: Sequence[int] | None = None) -> list:
     """[fn(shared, *job) for job in jobs], run in `workers` processes (default
     `default_workers()`; in this process when that is 1 or there is one job). `first`: job
     indices in the order to start them (the costliest first keeps both cores busy to the end).
+    Jobs that all hand over nothing (every argument an empty list, e.g. the shards left to
+    collect of a buffer already on disk) run in this process without a progress bar, which
+    would read "0 episodes 1/1".
     """
     from .utils import progress
 
@@ -71,6 +79,8 @@ def map_jobs(fn: Callable, jobs: Sequence[tuple], shared=None, workers: int | No
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     workers = min(workers, len(jobs))
+    if all(_is_empty(job) for job in jobs):     # nothing to do (a buffer already on disk): no bar
+        return [fn(shared, *job) for job in jobs]
     if workers <= 1:
         return [fn(shared, *job) for job in progress(jobs, desc=desc)]
 

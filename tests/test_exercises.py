@@ -45,7 +45,7 @@ def run_cells(cells, namespace=None):
 
 
 def test_every_notebook_from_01_has_two_exercises_with_checks():
-    assert [p.name[:2] for p in MASTERS] == ["01", "02", "03", "04", "05", "06", "07"]
+    assert [p.name[:2] for p in MASTERS] == ["01", "02", "03", "04", "05", "06", "07", "08", "09", "10"]
     for path in MASTERS:
         nb = load(path)
         cells = nb["cells"]
@@ -120,11 +120,46 @@ def test_masters_pass_stubs_raise_and_wrong_answers_fail(path):
 def test_check_prints_a_plain_verdict():
     out = io.StringIO()
     with redirect_stdout(out):
-        assert check("double", lambda x: 2 * x, lambda x: x + x, [1, 2.5])
-        with pytest.raises(AssertionError, match="expected 4, got 5"):
+        assert check("double", lambda x: 2 * x, lambda x: x + x, [1, 2.5]) is None   # no `Out[n]: True`
+        with pytest.raises(AssertionError, match="expected 4, got 5") as wrong:
             check("double", lambda x: 2 * x + (x == 2), lambda x: x + x, [1, 2])
-    assert "✓ double: correct on 2 input(s)" in out.getvalue()
-    assert "✗ double: for input 2 expected 4, got 5" in out.getvalue()
+    assert out.getvalue() == "✓ double: correct on 2 input(s), same as the library\n"
+    # IPython shows an exception by its _render_traceback_ when it has one: the verdict, one line
+    assert isinstance(wrong.value, exercises.WrongAnswer)
+    assert wrong.value._render_traceback_() == ["✗ double: for input 2 expected 4, got 5 (different value)"]
+
+
+def test_an_unsolved_stub_shows_two_lines_and_stays_a_not_implemented_error():
+    def stub(x):
+        raise NotImplementedError("Exercise 1: add x to itself")
+
+    with pytest.raises(NotImplementedError, match="Exercise 1: add x to itself") as err:
+        check("double", stub, lambda x: x + x, [1])
+    assert err.value._render_traceback_() == [
+        "… double: not solved yet; write the function in the cell above, then rerun both cells",
+        "NotImplementedError: Exercise 1: add x to itself"]
+
+
+def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys, tmp_path, monkeypatch):
+    """What a student sees: IPython's shell renders the failing check as the verdict line."""
+    shell_module = pytest.importorskip("IPython.core.interactiveshell")
+    from traitlets.config import Config
+
+    monkeypatch.setenv("IPYTHONDIR", str(tmp_path))          # no profile or history in $HOME
+    config = Config()
+    config.HistoryManager.enabled = False
+    shell = shell_module.InteractiveShell.instance(config=config)
+    try:
+        shell.run_cell("from ncs_lite.exercises import check\n"
+                       "check('double', lambda x: 3 * x, lambda x: x + x, [2])")
+        shown = capsys.readouterr()
+        text = shown.out + shown.err
+        assert "✗ double: for input 2 expected 4, got 6 (different value)" in text
+        assert "Traceback" not in text and "exercises.py" not in text
+        result = shell.run_cell("check('double', lambda x: 2 * x, lambda x: x + x, [2])")
+        assert result.result is None and result.success      # nothing for `Out[n]`
+    finally:
+        shell_module.InteractiveShell.clear_instance()
 
 
 @pytest.mark.parametrize("path", sorted((REPO / "exercises" / "student").glob("[0-9][0-9]_*.ipynb")),
@@ -154,6 +189,8 @@ def test_student_copy_runs_to_its_first_exercise_and_stops_there(path, tmp_path)
     failed = [c for c in nb.cells if c.cell_type == "code"
               and any(o.get("output_type") == "error" for o in c.get("outputs", []))]
     assert len(failed) == 1 and "check(" in failed[0].source
+    shown = next(o for o in failed[0].outputs if o.get("output_type") == "error").traceback
+    assert len(shown) == 2 and "not solved yet" in shown[0], shown     # two lines, not a traceback
 
 
 def test_measured_time_reads_the_reproduce_record(tmp_path, monkeypatch):

@@ -46,3 +46,28 @@ def test_a_fixed_slot_count_ignores_the_object_count():
     assert learned_perception(model, 4, NCSConfig()).num_slots == max(model.cfg.slots.num_slots, 5)
     with pytest.raises(ValueError, match="ncs.slots must be an integer >= 1, got 0"):
         NCSConfig(slots=0).validate()
+
+
+def _rows(clusters, data, slots, episodes=100):
+    rows = []
+    for varied, points in (("clusters", clusters), ("data", data), ("slots", slots)):
+        for x, successes in points.items():
+            rows.append({"varied": varied, "x": x, "method": "ncs", "successes": successes, "episodes": episodes,
+                         "success": successes / episodes})
+    return rows
+
+
+def test_fig9_claims_read_the_gaps_between_points():
+    from ncs_lite.hyperparameters import fig9_claims
+
+    rows = _rows({16: 40, 45: 90, 50: 60}, {2500: 30, 20000: 90}, {3: 10, 5: 100, 10: 99})
+    verdicts = {c["statement"]: c["verdict"] for c in fig9_claims(rows)}
+    assert list(verdicts.values()) == ["held", "held", "held", "held"]
+    # a peak at an end of the cluster range, no gain from data, a large loss with double slots
+    rows = _rows({16: 90, 45: 60, 50: 40}, {2500: 60, 20000: 60}, {3: 10, 5: 90, 10: 40})
+    claims = fig9_claims(rows)
+    assert [c["verdict"] for c in claims] == ["not held", "not testable", "held", "not held"]
+    assert "at an end" in claims[0]["ours"]
+    # an axis without the counts a claim compares
+    claims = fig9_claims(_rows({16: 40, 45: 90, 50: 60}, {2500: 30, 20000: 90}, {6: 80, 8: 80}))
+    assert [c["verdict"] for c in claims[2:]] == ["not testable", "not testable"]

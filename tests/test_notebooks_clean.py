@@ -27,6 +27,18 @@ def test_notebook_is_clean(path):
         assert heading in text, f"{path.name} lacks the '{heading}' section"
 
 
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_carries_the_kernels_metadata(path):
+    """The metadata the python3 kernel writes is committed, so opening a notebook in JupyterLab
+    does not mark it modified (only the Python version may differ on another machine: the
+    kit compares notebooks by their cells, `ncs_lite.utils.notebook_content`)."""
+    kernel = pytest.importorskip("ipykernel.ipkernel").IPythonKernel
+    expected = {k: v for k, v in kernel.language_info.items() if k != "version"}
+    info = json.loads(path.read_text())["metadata"]["language_info"]
+    assert {k: v for k, v in info.items() if k != "version"} == expected and isinstance(info.get("version"), str), \
+        f"{path.name}: language_info is not what the python3 kernel writes: {info}"
+
+
 ENV_MAKERS = ("make", "make_env")    # ncs_lite.envs.make, TaskSet.make_env
 
 

@@ -101,7 +101,7 @@ def _unfit(path: Path, method: str, cfg, env: str, data: Path) -> str | None:
     except ValueError as e:
         return f"it cannot be read ({e})"
     info = ckpt["info"]
-    if ckpt["config"] != json.loads(json.dumps(asdict(cfg))):
+    if json.loads(json.dumps(ckpt["config"])) != json.loads(json.dumps(asdict(cfg))):   # tuples read back as lists
         return "it was trained with another config"
     if info.get("env") != env or info.get("manifest_sha256") != manifest_hash(data):
         return "it was trained on another env or buffer"
