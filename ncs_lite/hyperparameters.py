@@ -174,7 +174,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = fig9_jobs(assets, preset, seed)
-    summaries = run_sweep(_evaluate, jobs, executor=executor, folder=folder)
+    summaries = run_sweep(_evaluate, jobs, executor=executor, folder=folder, desc="fig9")
     rows = []
     for point, s in zip(points, summaries):
         row = {**point, "episodes": s["episodes"], "successes": round(s["success"] * s["episodes"]),
