@@ -173,3 +173,25 @@ def test_links_in_readme_and_docs_point_to_files_that_exist():
             if not (page.parent / target.split("#")[0]).exists():
                 missing.append(f"{page.relative_to(REPO_DIR)}: {target}")
     assert missing == []
+
+
+def test_the_readme_lists_appendix_d_claims_one_row_per_statement():
+    from ncs_lite.docs import _claims_rows, render_results_block
+
+    def ratio(num, den, verdict):
+        return {"statement": f"NCS ({num}) at a 1x horizon reaches at least 50x the success of the model-based "
+                             f"baseline {den} at 8x", "numerator": {"label": f"{num} at 1x"},
+                "denominator": {"label": f"{den} at 8x"}, "ours": f"ratio for {den}", "verdict": verdict,
+                "reason": "r"}
+
+    claims = [ratio("ncs", "mpc", "not testable"), ratio("ncs", "nf", "held"), ratio("ncs-paper", "mpc", "not held"),
+              {"statement": "NF performs similar to the random baseline", "ours": "gap 0.00", "verdict": "held",
+               "reason": "the gap's interval lies within +-0.1"}]
+    rows = _claims_rows({"fig10_reduced.json": {"table": "fig10_reduced", "claims": claims, "rows": []}})
+    assert [r[0] for r in rows] == ["Fig. 10", "Fig. 10"]
+    assert rows[0][1].endswith("the model-based baselines at 8x") and "ncs-paper" not in " ".join(rows[0])
+    assert rows[0][3] == "mpc **not testable**; nf **held**"
+    assert rows[1][3].startswith("**held**")
+    block = render_results_block({"fig10_reduced.json": {"table": "fig10_reduced", "claims": claims, "rows": [],
+                                                          "commit": "abc1234"}})
+    assert "Appendix D's claims" in block and "`fig10_reduced` at abc1234" in block
