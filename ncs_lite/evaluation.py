@@ -435,17 +435,20 @@ def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed
     return cached("evaluation", lambda: evaluate(make, tasks, name), **key)
 
 
-def _evaluate_job(_, method: str, tasks: TaskSet, kwargs: dict) -> list[dict]:
+def evaluate_job(method: str, tasks: TaskSet, kwargs: dict) -> list[dict]:
+    """One job of a sweep of evaluations: `evaluate_method(method, tasks, **kwargs)` (cached
+    by its inputs)."""
     return evaluate_method(method, tasks, **kwargs)
 
 
 def evaluate_methods(jobs, workers: int | None = None, first=None, desc: str = "evaluate") -> list[list[dict]]:
     """[evaluate_method(method, tasks, **kwargs) for method, tasks, kwargs in jobs], the jobs
-    run side by side in `workers` processes (`workers.map_jobs`: task sets are seeded, so the
-    rows are a serial run's, bit for bit); `first`: the order to start them (costliest first)."""
-    from .workers import map_jobs
+    run side by side in `workers` processes (`sweeps.run_sweep` on this machine: task sets are
+    seeded, so the rows are a serial run's, bit for bit); `first`: the order to start them
+    (costliest first)."""
+    from .sweeps import run_sweep
 
-    return map_jobs(_evaluate_job, [tuple(job) for job in jobs], workers=workers, first=first, desc=desc)
+    return run_sweep(evaluate_job, jobs, workers=workers, first=first, desc=desc)
 
 
 def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -> dict[str, np.ndarray]:

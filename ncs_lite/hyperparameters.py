@@ -145,13 +145,6 @@ def fig9_claims(rows: list[dict], num_objects: int = OBJECTS) -> list[dict]:
     return claims
 
 
-def _evaluate(method: str, tasks, kwargs: dict) -> dict:
-    """One point of the sweep: the summary of `evaluate_method(method, tasks, **kwargs)`."""
-    from .evaluation import evaluate_method, summarize
-
-    return summarize(evaluate_method(method, tasks, **kwargs))[0]
-
-
 def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, seed: int = 0, out_dir=None,
                allow_dirty: bool = False) -> dict:
     """figures/tables/fig9_<preset>.csv / .json: one row per axis (`varied`), value (`x`) and method (success
@@ -162,6 +155,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
 
     from .comparison import comparison_assets
     from .config import to_dict
+    from .evaluation import evaluate_job, summarize
     from .reproduce import _table_dir, write_table
     from .utils import provenance, relative_to_repo
     from .sweeps import check_executor, run_sweep
@@ -174,7 +168,8 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = fig9_jobs(assets, preset, seed)
-    summaries = run_sweep(_evaluate, jobs, executor=executor, folder=folder, desc="fig9")
+    summaries = [summarize(rows)[0] for rows in run_sweep(evaluate_job, jobs, executor=executor, folder=folder,
+                                                          desc="fig9")]
     rows = []
     for point, s in zip(points, summaries):
         row = {**point, "episodes": s["episodes"], "successes": round(s["success"] * s["episodes"]),

@@ -28,7 +28,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-__all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs", "evaluate_cell",
+from .evaluation import wilson_interval
+
+__all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs",
            "gap_claim", "katz_ratio_interval", "newcombe_interval", "ratio_claim", "stress_table", "tasks_per_point"]
 
 ENV, NUM_OBJECTS, GOAL = "robogym-rearrange", 4, "complete"
@@ -75,17 +77,11 @@ TASKS = {"ci": {"tasks": 2, "mpc": 2}, "reduced": {"tasks": 100, "mpc": 40}, "pa
 
 
 # ---------------------------------------------------------------------- claims
-def _wilson(successes: int, n: int) -> tuple[float, float]:
-    from .evaluation import wilson_interval
-
-    return wilson_interval(successes, n)
-
-
 def newcombe_interval(s1: int, n1: int, s2: int, n2: int, z: float = 1.96) -> tuple[float, float, float]:
     """p1 - p2 and its 95 % interval from the two Wilson intervals (Newcombe 1998, method 10):
     sound at 0 and n successes, where the Wald interval collapses."""
     p1, p2 = s1 / n1, s2 / n2
-    (l1, u1), (l2, u2) = _wilson(s1, n1), _wilson(s2, n2)
+    (l1, u1), (l2, u2) = wilson_interval(s1, n1), wilson_interval(s2, n2)
     d = p1 - p2
     return d, d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2), d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2)
 
@@ -137,7 +133,7 @@ def ratio_claim(statement: str, num: dict, den: dict, at_least: float) -> dict:
             out.update(verdict="not testable",
                        reason=f"the ratio's 95 % interval contains {at_least:g}: too few tasks to tell")
         return out
-    num_lo, den_hi = _wilson(s1, n1)[0], _wilson(s2, n2)[1]
+    num_lo, den_hi = wilson_interval(s1, n1)[0], wilson_interval(s2, n2)[1]
     out.update(ratio=None, ratio_ci=None,
                ours=f"ratio undefined ({den['label']} solved 0 of {n2}); gap {gap:.2f} [{gap_lo:.2f}, {gap_hi:.2f}] "
                     f"({_name(num)} - {_name(den)})")
@@ -304,13 +300,6 @@ def _cost(job) -> float:
     return per_step * tasks.horizon_multiplier * tasks.episodes
 
 
-def evaluate_cell(method: str, tasks, kwargs: dict) -> list[dict]:
-    """One sweep job: `evaluate_method(method, tasks, **kwargs)` (cached by its inputs)."""
-    from .evaluation import evaluate_method
-
-    return evaluate_method(method, tasks, **kwargs)
-
-
 KEEP = ("mean_steps", "random_fraction", "noop_fraction")
 CONSTRAINTS = ("constraints", "constraints_ci_low", "constraints_ci_high")     # when `summarize` gives them
 
@@ -333,7 +322,7 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
     (`sweeps.run_sweep` with `executor`), the costliest first."""
     from .comparison import comparison_assets
     from .config import to_dict
-    from .evaluation import summarize
+    from .evaluation import evaluate_job, summarize
     from .reproduce import _table_dir, write_table
     from .sweeps import check_executor, require_submitit, run_sweep
     from .utils import provenance, relative_to_repo, sha256_file
@@ -350,7 +339,7 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
     assets = comparison_assets(preset, env=ENV)
     points, jobs = cell_jobs(figure, assets, preset, sizes, methods, cache)
     first = sorted(range(len(jobs)), key=lambda i: (-_cost(jobs[i]), i))
-    cells = run_sweep(evaluate_cell, jobs, executor=executor, folder=folder, workers=workers, first=first,
+    cells = run_sweep(evaluate_job, jobs, executor=executor, folder=folder, workers=workers, first=first,
                       desc=figure)
     summaries = [summarize(rows)[0] for rows in cells]
     rows = [_row(varied, x, label, summaries[i]) for varied, x, label, i in points]

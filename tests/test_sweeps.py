@@ -8,7 +8,7 @@ from ncs_lite.sweeps import EXECUTORS, MissingPackage, check_executor, run_sweep
 
 
 # jobs run in new processes, which import a job's function by name: a builtin (`pow`) or the
-# tables' own `stress.evaluate_cell`, never a function of this test module
+# tables' own `evaluation.evaluate_job`, never a function of this test module
 def random_jobs():
     """A cheap seeded sweep: `random` on robogym-rearrange's first tasks at two horizons."""
     from ncs_lite.evaluation import TaskSet
@@ -29,7 +29,7 @@ def test_local_pool_keeps_job_order_whatever_the_start_order():
 
 def test_submitit_gives_the_local_pool_rows_in_job_order(tmp_path):
     pytest.importorskip("submitit")
-    from ncs_lite.stress import evaluate_cell
+    from ncs_lite.evaluation import evaluate_job as evaluate_cell
 
     jobs = random_jobs()
     local = run_sweep(evaluate_cell, jobs, workers=2)
