@@ -5,7 +5,8 @@
 Pages keep the repository's layout, so a relative link between two files stays a relative
 link between their pages: README.md -> index.html, docs/X.md -> docs/X.html,
 notebooks/NN_x.ipynb -> notebooks/NN_x.html. A notebook's page is the executed copy that
-`make reproduce` wrote to build/notebooks/ (papermill), its figures inline; a notebook not
+`make reproduce` wrote to build/notebooks/ (papermill), its figures inline and its formulas
+as MathML (`latex_to_mathml`, which browsers draw without a script); a notebook not
 executed yet gets a page without outputs that says so. Links to .md and .ipynb files become
 links to their pages; other files the text names (figures/*.png) are copied beside the pages;
 headings get GitHub's anchors, so `results.md#seeds_reducedjson` lands on its heading. Built
@@ -23,6 +24,8 @@ import shutil
 import sys
 from collections import Counter
 from pathlib import Path
+
+from latex2mathml.converter import convert
 
 from .utils import REPO_DIR, relative_to_repo
 
@@ -54,6 +57,24 @@ NOTEBOOK_TEMPLATE = """{%- extends 'index.html.j2' -%}
 {%- block html_head_css -%}<style>{{ resources.book_css }}</style>{%- endblock html_head_css -%}
 {% block body_header %}{{ super() }}{{ resources.book_nav }}{% endblock body_header %}
 """
+
+
+# ---------------------------------------------------------------------------- formulas
+# $$...$$ (display) and $...$ (inline, no space inside the dollars, as Jupyter reads them), outside code
+_CODE = re.compile(r"(```.*?```|`[^`\n]*`)", re.S)
+_DISPLAY = re.compile(r"\$\$(.+?)\$\$", re.S)
+_INLINE = re.compile(r"(?<![\\$\w])\$(?=\S)([^$\n]+?)(?<=\S)\$(?![\w$])")
+
+
+def latex_to_mathml(markdown: str) -> str:
+    """`markdown` with its LaTeX formulas replaced by MathML (latex2mathml), code left alone:
+    the book loads nothing from a CDN, so MathJax cannot typeset them in the browser."""
+    def formulas(text: str) -> str:
+        text = _DISPLAY.sub(lambda m: convert(m.group(1).strip(), display="block"), text)
+        return _INLINE.sub(lambda m: convert(m.group(1)), text)
+
+    parts = _CODE.split(markdown)       # odd parts are code spans and fences
+    return "".join(part if i % 2 else formulas(part) for i, part in enumerate(parts))
 
 
 # ---------------------------------------------------------------------------- links
@@ -138,7 +159,7 @@ def markdown_html(text: str) -> str:
             return f'<h{level} id="{anchor}">{text}</h{level}>\n'
 
     render = mistune.create_markdown(renderer=Renderer(escape=False), plugins=["table", "strikethrough"])
-    return render(text)
+    return render(latex_to_mathml(text))
 
 
 NAV = "<!--book-nav-->"    # where a page's navigation goes once its links are rewritten
@@ -153,14 +174,20 @@ def markdown_page(text: str, title: str) -> str:
 
 
 def notebook_page(nb_path: Path, title: str) -> str:
-    """The nbconvert (lab template) HTML of a notebook, images embedded, nothing from a CDN."""
+    """The nbconvert (lab template) HTML of a notebook, its output images inline, formulas as
+    MathML, nothing from a CDN."""
     import jinja2
     import nbformat
     from nbconvert import HTMLExporter
 
     exporter = HTMLExporter(template_name="lab", extra_loaders=[jinja2.DictLoader({"book.html.j2": NOTEBOOK_TEMPLATE})],
-                            template_file="book.html.j2", embed_images=True)
+                            template_file="book.html.j2")
+    # outputs' images are inline data already; embed_images (for markdown <img>, which the
+    # notebooks do not use) would re-parse each inline tag alone and break MathML apart
     nb = nbformat.read(nb_path, as_version=4)
+    for cell in nb.cells:
+        if cell.cell_type == "markdown":
+            cell.source = latex_to_mathml(cell.source)
     body, _ = exporter.from_notebook_node(nb, resources={"metadata": {"name": title, "path": str(nb_path.parent)},
                                                          "book_nav": NAV, "book_css": CSS})
     return body

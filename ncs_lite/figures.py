@@ -77,7 +77,7 @@ def save_fig(fig, notebook: str, name: str, params: dict | None = None, model=No
     for ext in ("png", "pdf"):
         with atomic_path(folder / f"{name}.{ext}") as tmp:
             fig.savefig(tmp, format=ext, dpi=150, bbox_inches="tight")
-    record = {"notebook": notebook, "figure": name, "params": params or {},
+    record = {"notebook": notebook, "figure": name, "params": _repo_relative(params or {}),
               "versions": package_versions(), **provenance(folder, allow_dirty=True)}
     info = getattr(model, "checkpoint_info", None)
     if info:
@@ -86,6 +86,18 @@ def save_fig(fig, notebook: str, name: str, params: dict | None = None, model=No
                            "step": info.get("step")}
     atomic_write_json(folder / f"{name}.json", record)
     return folder / f"{name}.png"
+
+
+def _repo_relative(value):
+    """`value` with every absolute path inside the repo (a str or Path, at any depth) made
+    relative to it: a figure's record must not name the machine or checkout that drew it."""
+    if isinstance(value, dict):
+        return {k: _repo_relative(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_repo_relative(v) for v in value]
+    if isinstance(value, (str, Path)) and os.path.isabs(value):
+        return relative_to_repo(value)
+    return value
 
 
 def filmstrip(axes_row, frames, titles=None):

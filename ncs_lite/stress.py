@@ -28,6 +28,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from .comparison import PAPER_NCS
 from .evaluation import wilson_interval
 
 __all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs",
@@ -40,11 +41,6 @@ NOISE_HORIZON = 4.0                                     # the main paper's horiz
 THRESHOLD = 0.05                                        # pick and place thresholds (m), Appendix C
 SIMILAR_MARGIN = 0.1     # "similar" success rates: within 0.1 of each other (the paper gives no margin)
 
-# NCS as the paper specifies it: one slot-attention pass per image, Hungarian alignment with
-# every matched pair a constraint, the edge's most common action (the shipped graph keeps its
-# edge labels, so "most_common" acts on it too). The kit's extensions it leaves out: restarts,
-# the "near" pairs, actions read from the transitions' states (ncs/graph.py's docstring).
-PAPER_NCS = {"restarts": 1, "align": "hungarian", "edge_action": "most_common"}
 # label: (method of `evaluation.METHODS`, NCSConfig overrides, MPCConfig overrides)
 VARIANTS = {
     "random": ("random", {}, {}),

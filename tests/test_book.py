@@ -2,6 +2,7 @@
 between their pages, other files they name are copied beside them, headings get GitHub's
 anchors. The browser check of a built book is `scripts/check_book.py` (`make book-check`)."""
 import json
+import re
 
 import pytest
 
@@ -99,3 +100,23 @@ def test_executed_note_names_the_parameters(tmp_path):
     nb.write_text(json.dumps({"metadata": {"papermill": {"parameters": {"preset": "ci"}}}, "cells": []}))
     assert "preset=ci" in book.executed_note(nb, "01_environments")
     assert "make reproduce" in book.executed_note(None, "01_environments")
+
+
+def test_formulas_become_mathml_and_code_stays_as_written():
+    from ncs_lite.book import latex_to_mathml
+
+    out = latex_to_mathml("Loss $$L = x^2$$ and inline $\\tau$, not `$HOME` nor $ 5 and $6.")
+    assert out.count("<math") == 2 and 'display="block"' in out
+    assert "`$HOME`" in out and "$ 5 and $6." in out            # code and plain dollars untouched
+    assert latex_to_mathml("```\n$$x$$\n```") == "```\n$$x$$\n```"
+
+
+def test_notebook_formulas_reach_the_page_as_mathml():
+    from ncs_lite.book import notebook_page
+    from ncs_lite.utils import REPO_DIR
+
+    page = notebook_page(REPO_DIR / "notebooks" / "07_baselines.ipynb", "07")
+    blocks = re.findall(r"<math [^>]*>", page)
+    assert len(blocks) == 3 and all('display="block"' in b for b in blocks)        # IQL's (1)-(3)
+    assert "</msub>" in page                                                    # nested, not torn apart
+    assert "$$L_V" not in page

@@ -50,3 +50,22 @@ def test_arena_to_pixel_lands_on_the_cube():
             assert abs(cols.mean() - col) < 1.5 and abs(rows.mean() - row) < 1.5
     finally:
         env.close()
+
+
+def test_a_figure_record_names_no_absolute_path_of_the_repo(tmp_path, monkeypatch):
+    import json
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ncs_lite import figures
+    from ncs_lite.utils import REPO_DIR
+
+    monkeypatch.setenv("NCS_LITE_FIGURES", str(tmp_path))
+    fig = plt.figure()
+    png = figures.save_fig(fig, "nb", "f", {"checkpoint": str(REPO_DIR / "ncs_lite" / "assets" / "x.pt"),
+                                            "runs": [REPO_DIR / ".cache" / "r"], "outside": "/elsewhere/y"})
+    plt.close(fig)
+    params = json.loads(png.with_suffix(".json").read_text())["params"]
+    assert params == {"checkpoint": "ncs_lite/assets/x.pt", "runs": [".cache/r"], "outside": "/elsewhere/y"}
