@@ -58,9 +58,9 @@ from .config import DSlateConfig, get_preset, saved_config_diff, to_dict
 from .data.augment import augment_colors
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
-from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
-                    package_versions, progress, provenance, relative_to_repo, seed_everything, sha256_file,
-                    source_hash, tensor_digest)
+from .tensor_files import atomic_torch_save, check_weights, file_kind, load_tensor_file, tensor_digest
+from .utils import (check_out_file, package_versions, progress, provenance, relative_to_repo, seed_everything,
+                    sha256_file, source_hash)
 
 __all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
            "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",

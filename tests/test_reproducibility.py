@@ -307,7 +307,7 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     """dSLATE and BC/IQL checkpoints carry a kind tag and a digest of their tensors: a flipped
     byte, non-finite weights or another kind of file is refused in one line naming the path
     and what the file is; files written before the tag and digest (the shipped ones) load."""
-    from ncs_lite import utils as u
+    from ncs_lite import tensor_files as u
     from ncs_lite.baselines import bc as bc_module, goal_conditioned, nf
     from ncs_lite.baselines.runs import load_trained_policy
     from ncs_lite.inference import SHIPPED_CHECKPOINT, SHIPPED_GRAPH, SHIPPED_POLICIES, load_dslate

@@ -24,7 +24,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..utils import atomic_torch_save, check_weights, file_kind, load_tensor_file, one_line, tensor_digest
+from ..tensor_files import atomic_torch_save, check_weights, file_kind, load_tensor_file, tensor_digest
+from ..utils import one_line
 
 CHECKPOINT_FORMAT = 1
 KINDS = ("bc", "iql")                  # the kind tags of baseline checkpoints

@@ -38,7 +38,7 @@ from scipy.sparse.csgraph import dijkstra
 from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, check_features, check_graph_file, content_digest,
                          edge_tensors)
 from ..ncs.kmeans import assign, kmeans
-from ..utils import atomic_torch_save, file_kind, load_tensor_file
+from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 
 GRAPH_KIND = "nf-graph"
 GRAPH_FORMAT = 1

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..utils import atomic_torch_save, file_kind, load_tensor_file
+from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from .kmeans import assign, kmeans, pairwise_distances
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
