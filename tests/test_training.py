@@ -336,6 +336,20 @@ def test_gamma_keeps_black_white_and_order_but_changes_how_close_two_colours_are
         augment_colors("hue", videos, np.random.default_rng(0))
 
 
+def test_the_colour_augmentations_are_the_configs_choices():
+    from ncs_lite.config import COLOR_AUGMENTS, get_preset
+    from ncs_lite.data.augment import AUGMENTS
+
+    assert COLOR_AUGMENTS == ("none", *AUGMENTS)            # config.py names them, augment.py draws them
+    cfg = get_preset("ci")
+    cfg.train.color_augment = 3
+    with pytest.raises(ValueError, match=r"^train\.color_augment must be a string, got 3$"):
+        cfg.validate()
+    cfg.train.color_augment = "hue"
+    with pytest.raises(ValueError, match=r"train\.color_augment must be one of 'none', 'channels', 'channels_gamma'"):
+        cfg.validate()
+
+
 def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_frames():
     torch.manual_seed(0)
     model = DSlate(get_preset("ci")).eval()                    # no dropout: equal inputs, equal losses

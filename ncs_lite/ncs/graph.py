@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..config import EDGE_ACTIONS
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from .kmeans import assign, kmeans, pairwise_distances
 
@@ -62,7 +63,6 @@ BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
 STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Table 3's columns
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout"}
-EDGE_ACTIONS = ("most_common", "nearest", "compose", "readout")
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label

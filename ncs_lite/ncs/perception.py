@@ -21,6 +21,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from ..config import SLOT_POSITIONS
+
 STATE_GRID = 16
 # slot-attention restarts per image (DSlate.infer): slot attention is a local search and now
 # and then two slots share a cube; notebook 03 measures fg-ARI and absorbed cubes with one
@@ -43,7 +45,6 @@ RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8}
 # robogym-rearrange keeps "attention": the assigned read is not measured there.
 SLOT_POSITION = "attention"
 SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
-SLOT_POSITIONS = ("attention", "assigned")
 
 
 def acting_restarts(ncs, model) -> int:
