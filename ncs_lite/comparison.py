@@ -69,7 +69,8 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     from .config import NCSConfig, to_dict
     from .data import cached_buffer
     from .evaluation import learned_perception
-    from .inference import load_dslate, obtain_dslate, shipped_asset
+    from .inference import load_dslate, shipped_asset
+    from .training import obtain_dslate
     from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
     from .ncs.perception import buffer_transitions, graph_perception, slot_read
     from .utils import relative_to_repo

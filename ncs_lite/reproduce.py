@@ -166,7 +166,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .inference import load_dslate
     from .metrics import factorization_scores
     from .ncs.perception import DSlatePerception, acting_restarts
-    from .training import read_checkpoint, train
+    from .inference import read_checkpoint
+    from .training import train
 
     from .comparison import CI_CLUSTERS, graph_episodes_of
     from .inference import TRAIN_EPISODES
@@ -344,7 +345,8 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
     phases (`training.EXTENDABLE`, e.g. the render phase) is kept as `dslate-step-N.pt` (and
     its log) for `seeds` to extend; any other difference is refused."""
     from .config import from_dict, saved_config_diff
-    from .training import EXTENDABLE, read_checkpoint
+    from .inference import read_checkpoint
+    from .training import EXTENDABLE
 
     ckpt = read_checkpoint(ckpt_path)
     differ = saved_config_diff(ckpt["config"], cfg)

@@ -272,7 +272,7 @@ def test_evaluate_segmentation_on_a_buffer(buffer, tmp_path):
 
 
 def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
-    from ncs_lite.inference import obtain_dslate
+    from ncs_lite.training import obtain_dslate
 
     monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
     model, path = obtain_dslate("ci", seed=1)

@@ -321,7 +321,7 @@ def cached_buffer(episodes: int, env: str = "block-rearrange", num_objects: int 
 
     Checkpoints and graphs name their buffer by its manifest hash, which holds the config but
     not this folder's name: one trained before a code change still fits the buffer collected
-    after it (`inference.obtain_dslate`, `train --resume`), so nothing retrains."""
+    after it (`training.obtain_dslate`, `train --resume`), so nothing retrains."""
     from ..cache import code_digest
 
     path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}-{code_digest(*BUFFER_CODE)}"
