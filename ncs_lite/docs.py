@@ -35,7 +35,7 @@ __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "re
            "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
 
 BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
-# `reproduce`'s defaults (ncs_lite/reproduce.py, `add_subcommand` and `seeds_table`): a
+# `reproduce`'s defaults (its options in ncs_lite/__main__.py, and `reproduce.seeds_table`): a
 # command names an argument only where its table differs from them
 DEFAULT_EPISODES = 100
 DEFAULT_OBJECTS = {"block-rearrange": [4, 7], "robogym-rearrange": [4, 5, 6, 7]}

@@ -29,7 +29,7 @@ from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, f
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
-           "mean_sd", "add_subcommand"]
+           "mean_sd"]
 
 HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
 
@@ -624,42 +624,3 @@ def run_table(name: str, args) -> dict:
         return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
                             mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
-
-
-def add_subcommand(subparsers) -> None:
-    from .training import add_run_arguments
-
-    p = subparsers.add_parser("reproduce",
-                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig9, fig10, fig11)",
-                              description=__doc__.split("\n\n")[0])
-    p.add_argument("table", choices=sorted(TABLES))
-    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
-                   "the assets (and fig10, fig11: the tasks per point)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
-    p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
-                   "<cache>/seeds)")
-    p.add_argument("--checkpoint", help="clusters, robogym: checkpoint (default: the shipped one)")
-    p.add_argument("--graph", help="robogym: the learned NCS graph on slot states (default: the shipped one)")
-    p.add_argument("--oracle-graph", help="robogym: the position oracle's graph (default: the shipped one)")
-    p.add_argument("--episodes", type=int, default=None,
-                   help="tasks per object count (default: 100; baselines: the preset's, reduced 50); fig10, fig11: "
-                   "tasks per point (default: the preset's, ncs_lite.stress.TASKS)")
-    p.add_argument("--mpc-episodes", type=int, default=None,
-                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 25); fig10, "
-                   "fig11: MPC's tasks per point")
-    p.add_argument("--executor", default="local",
-                   help="fig10, fig11: where the sweep's jobs run: local (this machine's worker processes) or "
-                   "submitit (a Slurm job array when Slurm is found, else local processes; needs the "
-                   "`sweeps` extra)")
-    p.add_argument("--sweep-folder", default=None,
-                   help="fig10, fig11 with --executor submitit: the jobs' pickles and logs (default: "
-                   "<cache>/submitit/<job id>)")
-    p.add_argument("--env", default="block-rearrange", help="seeds: the environment to train on; baselines: "
-                   "the environment (its shipped assets)")
-    p.add_argument("--objects", type=int, nargs="+", default=None,
-                   help="robogym, seeds: object counts to evaluate (default: robogym 4 5 6 7, "
-                   "block-rearrange seeds 4 7)")
-    p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
-    add_run_arguments(p)
-    p.set_defaults(func=lambda args: print(json.dumps(run_table(args.table, args), indent=2,
-                                                      default=str)))

@@ -506,69 +506,6 @@ def _truncate_csv(csv_path: Path, step: int) -> None:
         csv.writer(f).writerows(keep)
 
 
-# ---------------------------------------------------------------------- CLI
-def add_subcommand(subparsers) -> None:
-    """Register `train` on the CLI's subparsers (ncs_lite/__main__.py)."""
-    p = subparsers.add_parser("train", help="train dSLATE on an experience buffer",
-                              description="Train dSLATE (dVAE + slot attention + SLATE decoder + "
-                                          "dynamics) on a buffer made by `collect`.")
-    p.add_argument("--env", default="block-rearrange", help="environment the buffer comes from")
-    p.add_argument("--preset", default="reduced", help="config preset: ci, reduced or paper")
-    p.add_argument("--data", required=True, help="buffer directory (from `collect`)")
-    p.add_argument("--out", required=True, help="checkpoint path (.pt); the loss CSV goes beside it")
-    p.add_argument("--resume", action="store_true", help="continue from --out")
-    p.add_argument("--extend", default=None, metavar="CHECKPOINT",
-                   help="continue a finished run (another file) into --out under a schedule that only adds "
-                        f"steps after its end ({', '.join(EXTENDABLE)}), e.g. the render phase")
-    p.add_argument("--steps", type=int, default=None,
-                   help="stop at this global step (default: the preset's full schedule)")
-    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
-    p.add_argument("--precision", default=None, choices=["auto", "bf16", "fp32"],
-                   help="override the preset's precision")
-    p.add_argument("--compile", action="store_true",
-                   help="torch.compile the forward (faster steps after a compilation pause)")
-    p.add_argument("--seed", type=int, default=None,
-                   help="override the preset's train.seed (initial weights and batch order)")
-    add_run_arguments(p)
-    p.add_argument("--force", action="store_true",
-                   help="delete an existing run at --out (checkpoint and loss log) and start afresh")
-    p.set_defaults(func=_main)
-
-
-def add_run_arguments(p) -> None:
-    """`--set` and `--allow-dirty`, shared by every command that takes a config."""
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
-                   help="override one config field, e.g. --set train.lr=1e-3 (repeatable)")
-    p.add_argument("--allow-dirty", action="store_true",
-                   help="write into figures/ or ncs_lite/assets/ from a tree with uncommitted changes "
-                        "(recorded as dirty)")
-
-
-def config_from_args(args) -> DSlateConfig:
-    """The preset of `args.preset` with `--seed` and `--set` applied."""
-    from .config import apply_overrides
-
-    cfg = get_preset(args.preset, getattr(args, "env", "block-rearrange"))
-    if getattr(args, "seed", None) is not None:
-        if args.seed < 0:
-            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
-        cfg.train.seed = args.seed
-    return apply_overrides(cfg, args.overrides)
-
-
-def _main(args) -> None:
-    cfg = config_from_args(args)
-    t0 = time.perf_counter()
-    path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
-                 max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile,
-                 force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty,
-                 extend=args.extend)
-    ckpt = read_checkpoint(path)
-    print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
-          f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "
-          f"this run); losses in {Path(path).with_suffix('.csv')}")
-
-
 # ---------------------------------------------------------------------- load or train
 def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
                   env: str = "block-rearrange", device=None) -> tuple[DSlate, Path]:

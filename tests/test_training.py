@@ -7,7 +7,7 @@ import torch
 from ncs_lite.config import get_preset, to_dict
 from ncs_lite.inference import load_dslate
 from ncs_lite.models.dslate import DSlate
-from ncs_lite.training import BatchOrder, add_subcommand, lr_at, train
+from ncs_lite.training import BatchOrder, lr_at, train
 
 
 @pytest.fixture(scope="module")
@@ -252,11 +252,9 @@ def test_schedules_and_batch_order():
 
 
 def test_cli_subcommand():
-    import argparse
+    from ncs_lite.__main__ import build_parser
 
-    parser = argparse.ArgumentParser()
-    add_subcommand(parser.add_subparsers(dest="cmd"))
-    args = parser.parse_args(["train", "--env", "block-rearrange", "--preset", "reduced", "--data", "D",
+    args = build_parser().parse_args(["train", "--env", "block-rearrange", "--preset", "reduced", "--data", "D",
                               "--out", "C.pt", "--resume", "--steps", "7"])
     assert (args.preset, args.data, args.out, args.resume, args.steps) == ("reduced", "D", "C.pt", True, 7)
     assert callable(args.func)
