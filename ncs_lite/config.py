@@ -544,6 +544,15 @@ def _ci() -> DSlateConfig:
 
 
 PRESETS = {"ci": _ci, "reduced": _reduced, "paper": _paper}
+# Seeded tasks per point of Figs. 10 and 11 at each preset (`stress.TASKS`; `reproduce fig10
+# --episodes`, `--mpc-episodes`; docs.py names them when it rebuilds a table's command). MPC
+# plans with 2,500 dynamics rollouts a step (x its planning horizon) and runs every episode to
+# its horizon, so `reduced` runs it on the first `mpc` tasks of each set, sized for about 10
+# minutes of fig10's MPC cells in two one-thread processes (1, 2, 4, 8x: 60 steps a task at
+# each of 3 planning horizons; 0.11 / 0.17 / 0.23 s a step on the shipped model, 2 cores); the
+# other methods read the whole set
+STRESS_TASKS = {"ci": {"tasks": 2, "mpc": 2}, "reduced": {"tasks": 100, "mpc": 40},
+                "paper": {"tasks": 100, "mpc": 100}}
 # What a preset changes on an environment other than block-rearrange, each with its reason
 # (`get_preset(name, env)`; the same as `--set` overrides, recorded in the checkpoint's config).
 ENV_OVERRIDES = {

@@ -156,7 +156,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
     from .comparison import comparison_assets
     from .config import to_dict
     from .evaluation import evaluate_job, summarize
-    from .reproduce import _table_dir, write_table
+    from .tables import table_dir, write_table
     from .utils import provenance, relative_to_repo
     from .sweeps import check_executor, run_sweep
 
@@ -164,7 +164,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
     if preset not in AXES:
         raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(AXES)}")
     name = f"fig9_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused first
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused first
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = fig9_jobs(assets, preset, seed)

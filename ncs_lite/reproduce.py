@@ -17,15 +17,15 @@ The segmentation and success measures are the ones notebooks 03 and 06 report.
 """
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
-                    relative_to_repo, sha256_file, source_hash)
+from .docs import write_docs
+from .tables import table_dir, write_table
+from .utils import (REPO_DIR, atomic_write_json, cache_dir, figures_dir, progress, provenance, relative_to_repo,
+                    sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
@@ -73,32 +73,6 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
             "absorbed": float(in_floor_slot(owner, background).mean()), "shared": float(shared[owner >= 0].mean()),
             "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
             "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
-
-
-# ---------------------------------------------------------------------- writing a table
-def _table_dir(out_dir) -> Path:
-    return Path(out_dir) if out_dir else figures_dir() / "tables"
-
-
-def write_table(name: str, rows: list[dict], meta: dict, out_dir=None, allow_dirty=False) -> Path:
-    """figures/tables/<name>.csv + .json, refusing a dirty tree for the committed folder."""
-    folder = _table_dir(out_dir)
-    made = provenance(folder / f"{name}.json", allow_dirty)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write_text(folder / f"{name}.csv", buf.getvalue())
-    atomic_write_json(folder / f"{name}.json", {"table": name, "rows": rows, **meta, **made})
-    if out_dir is None:                 # the committed tables: the README's blocks follow them
-        _write_docs()
-    return folder / f"{name}.csv"
-
-
-def _write_docs() -> None:
-    from .docs import write_docs
-
-    write_docs()
 
 
 # the sources a stage's value depends on: any edit there recomputes every stage
@@ -422,7 +396,7 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
     times.update(preset=preset, **provenance(path, allow_dirty=True))
     atomic_write_json(path, times)
     if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
-        _write_docs()
+        write_docs()
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
@@ -439,7 +413,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     episodes = episodes or EPISODES[preset]
     mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
     name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
     assets = comparison_assets(preset, env=env)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
@@ -447,7 +421,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
             "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
              for r in summarize(rows)]
-    write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
+    write_csv(rows, table_dir(out_dir) / f"{name}_episodes.csv")
     meta = {"env": env, "preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
             "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
                        if Path(v).is_file()},
@@ -479,7 +453,7 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     env = "robogym-rearrange"
     paths = {"checkpoint": Path(checkpoint or ROBOGYM_CHECKPOINT), "graph": Path(graph or ROBOGYM_SLOT_GRAPH),
              "oracle_graph": Path(oracle_graph or ROBOGYM_POSITION_GRAPH)}
-    provenance(_table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
+    provenance(table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
     model = load_dslate(paths["checkpoint"])
     learned, oracle = TransitionGraph.load(paths["graph"]), TransitionGraph.load(paths["oracle_graph"])
     ncs = NCSConfig(clusters=learned.num_nodes, state="slot", edge_action=learned.edge_action)

@@ -28,6 +28,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from .config import STRESS_TASKS
 from .evaluation import wilson_interval
 
 __all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs",
@@ -68,12 +69,7 @@ FIGURES = {
                                          "bc", "iql")),
               ("horizon_multiplier", HORIZONS, ("ncs", "ncs-oracle"))),
 }
-# tasks per point: MPC plans with 2,500 dynamics rollouts a step (x its planning horizon) and
-# runs every episode to its horizon, so `reduced` runs it on the first `mpc` tasks of each set,
-# sized for about 10 minutes of fig10's MPC cells in two one-thread processes (1, 2, 4, 8x: 60
-# steps a task at each of 3 planning horizons; 0.11 / 0.17 / 0.23 s a step on the shipped
-# model, 2 cores); the other methods read the whole set
-TASKS = {"ci": {"tasks": 2, "mpc": 2}, "reduced": {"tasks": 100, "mpc": 40}, "paper": {"tasks": 100, "mpc": 100}}
+TASKS = STRESS_TASKS        # tasks per point at each preset: config.py, beside the other presets
 
 
 # ---------------------------------------------------------------------- claims
@@ -323,7 +319,7 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
     from .comparison import comparison_assets
     from .config import to_dict
     from .evaluation import evaluate_job, summarize
-    from .reproduce import _table_dir, write_table
+    from .tables import table_dir, write_table
     from .sweeps import check_executor, require_submitit, run_sweep
     from .utils import provenance, relative_to_repo, sha256_file
 
@@ -334,7 +330,7 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
         require_submitit()                      # before the assets are read or built
     sizes = tasks_per_point(preset, episodes, mpc_episodes)
     name = f"{figure}_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = cell_jobs(figure, assets, preset, sizes, methods, cache)
