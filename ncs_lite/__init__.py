@@ -22,9 +22,8 @@ _choose_gl()   # MuJoCo's headless backend, before anything imports MuJoCo
 
 
 def __getattr__(name):
-    # `ncs_lite.load_dslate` without importing torch for users of the environments alone.
     if name in ("load_dslate", "SHIPPED_CHECKPOINT"):
-        from . import inference
+        from . import inference  # local: `import ncs_lite` loads no torch for users of the environments alone
 
         return getattr(inference, name)
     raise AttributeError(f"module 'ncs_lite' has no attribute {name!r}")

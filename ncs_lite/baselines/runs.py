@@ -12,8 +12,15 @@ run at `--out` is never replaced unless `--force`. The commands' options: ncs_li
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
+from ..cache import code_digest
+from ..config import section_config
+from ..data import cached_buffer, load_buffer, load_manifest, manifest_hash
+from ..envs import make
+from ..inference import TRAIN_EPISODES
+from ..utils import cache_dir, check_out_file, provenance, relative_to_repo
 from .bc import bc_config, load_bc, train_bc
 from .goal_conditioned import read_checkpoint
 from .iql import iql_config, load_iql, train_iql
@@ -32,8 +39,6 @@ def _method(method: str) -> str:
 
 def policy_config(method: str, preset: str = "reduced", overrides=(), seed: int | None = None):
     """The `preset` config of BC or IQL with `--seed` and `--set METHOD.FIELD=VALUE` applied."""
-    from ..config import section_config
-
     cfg = POLICIES[_method(method)][0](preset)
     if seed is not None:
         cfg.seed = int(seed)
@@ -53,11 +58,6 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
                  force: bool = False, overrides=(), allow_dirty: bool = False):
     """Train BC or IQL (`cfg`) on the buffer directory `data` into the checkpoint `out`.
     Returns (model, log)."""
-    from ..cache import code_digest
-    from ..data import load_buffer, load_manifest, manifest_hash
-    from ..envs import make
-    from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
-
     _method(method)
     out = check_out_file(out, f"{method} checkpoint")
     if resume and force:
@@ -90,11 +90,6 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
 
 def _unfit(path: Path, method: str, cfg, env: str, data: Path) -> str | None:
     """Why the cached policy at `path` cannot be reused or resumed, or None."""
-    from dataclasses import asdict
-
-    from ..cache import code_digest
-    from ..data import load_manifest, manifest_hash
-
     try:
         ckpt = read_checkpoint(path, method)
     except ValueError as e:
@@ -114,10 +109,6 @@ def obtain_policy(method: str, preset: str = "reduced", seed: int = 0, env: str 
     trained on the 4-object buffer dSLATE trains on (`inference.TRAIN_EPISODES[preset]`).
     A finished, fitting run is reused, an interrupted one resumed, an unfit one (another
     config, buffer or code) retrained; each decision is printed. Returns (model, path)."""
-    from ..data import cached_buffer
-    from ..inference import TRAIN_EPISODES
-    from ..utils import cache_dir
-
     cfg = policy_config(method, preset, seed=seed)
     path = cache_dir() / "checkpoints" / f"{method}-{env}-{preset}-s{seed}.pt"
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=0)
