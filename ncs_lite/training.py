@@ -308,7 +308,6 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     its loss log is copied first, and the new checkpoint's `lineage` records the extended
     file's step, hash, code version and the fields' old values.
     """
-
     cfg.validate()
     out_path = check_out_file(out_path, "checkpoint")
     device = resolve_device(device)
@@ -317,7 +316,6 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     stop = total if max_steps is None else int(max_steps)
     if stop < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-
 
     if env not in ENVIRONMENTS:
         raise ValueError(f"unknown environment {env!r}; expected one of {', '.join(ENVIRONMENTS)}")
