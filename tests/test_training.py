@@ -280,10 +280,10 @@ def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
     assert path2 == path and path.stat().st_mtime_ns == stamp
     for k, v in model.state_dict().items():
         assert torch.equal(v, again.state_dict()[k]), k
-    import ncs_lite.cache as cache
+    import ncs_lite.data.buffer as buffer
 
     with monkeypatch.context() as m:     # after an edit of envs/ the buffer is collected into another
-        m.setattr(cache, "code_digest", lambda *parts: "0123456789abcdef")    # folder: the checkpoint,
+        m.setattr(buffer, "code_digest", lambda *parts: "0123456789abcdef")   # folder: the checkpoint,
         obtain_dslate("ci", seed=1)                           # which names it by its manifest, still fits
     assert path.stat().st_mtime_ns == stamp and len(list((tmp_path / "buffers").iterdir())) == 2
     ckpt = torch.load(path, weights_only=True)                # a cache left by an older preset
