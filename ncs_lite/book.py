@@ -25,6 +25,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import jinja2
+import mistune
 from latex2mathml.converter import convert
 
 from .utils import REPO_DIR, relative_to_repo
@@ -147,8 +149,6 @@ def nav(page: str, pages: list[tuple[str, str]], note: str = "") -> str:
 
 def markdown_html(text: str) -> str:
     """Markdown -> HTML (mistune, the renderer nbconvert uses), headings with GitHub's anchors."""
-    import mistune
-
     seen: Counter = Counter()
 
     class Renderer(mistune.HTMLRenderer):
@@ -176,7 +176,7 @@ def markdown_page(text: str, title: str) -> str:
 def notebook_page(nb_path: Path, title: str) -> str:
     """The nbconvert (lab template) HTML of a notebook, its output images inline, formulas as
     MathML, nothing from a CDN."""
-    import jinja2
+    # local: nbconvert and nbformat take about 2 s to import; only notebook pages need them
     import nbformat
     from nbconvert import HTMLExporter
 

@@ -27,7 +27,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from .utils import atomic_torch_save, cache_dir, source_hash
+from .utils import atomic_path, cache_dir, source_hash
 
 __all__ = ["cached", "cache_path", "digest", "buffer_digest", "code_digest"]
 
@@ -176,6 +176,7 @@ def cached(name: str, compute: Callable[[], Any], **key) -> Any:
             why = f" (the cached file cannot be read: {type(e).__name__})"
     t0 = time.perf_counter()
     value = compute()
-    atomic_torch_save({"format": FORMAT, "key": text, "value": _encode(value)}, path)
+    with atomic_path(path) as tmp:          # readers see the old file or the new one, never half of one
+        torch.save({"format": FORMAT, "key": text, "value": _encode(value)}, tmp)
     print(f"computed {name} in {time.perf_counter() - t0:.1f} s, saved to cache{why}")
     return value

@@ -14,7 +14,16 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .evaluation import TaskSet, evaluate_methods
+from .baselines import SetGraph, mpc_config, set_graph_from_transitions
+from .baselines.runs import load_trained_policy, obtain_policy
+from .config import NCSConfig, to_dict
+from .data import cached_buffer
+from .evaluation import TaskSet, evaluate_methods, learned_perception
+from .inference import load_dslate, shipped_asset
+from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
+from .ncs.perception import buffer_transitions, graph_perception, slot_read
+from .training import obtain_dslate
+from .utils import relative_to_repo
 
 __all__ = ["COMPARED", "PAPER_NCS", "comparison_assets", "run_comparison"]
 
@@ -70,18 +79,6 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     `reduced`: the shipped assets (`inference.shipped_asset`, built by `make baseline-assets`
     and `make robogym-baseline-assets`). Other presets: the dSLATE of `obtain_dslate`, the
     policies of `obtain_policy`, and the graphs built here from the cached graph buffer."""
-    from dataclasses import replace
-
-    from .baselines import SetGraph, set_graph_from_transitions
-    from .baselines.runs import load_trained_policy, obtain_policy
-    from .config import NCSConfig, to_dict
-    from .data import cached_buffer
-    from .evaluation import learned_perception
-    from .inference import load_dslate, obtain_dslate, shipped_asset
-    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-    from .ncs.perception import buffer_transitions, graph_perception, slot_read
-    from .utils import relative_to_repo
-
     if env not in STATE_BY_ENV:
         raise ValueError(f"env must be one of {sorted(STATE_BY_ENV)}, got {env!r}")
     state = STATE_BY_ENV[env]
@@ -134,8 +131,6 @@ def run_comparison(assets: dict, counts=(4, 5, 6, 7), goals=("complete", "partia
     unknown = sorted(set(methods) - set(COMPARED))
     if unknown:
         raise ValueError(f"unknown methods {unknown}; expected some of {', '.join(COMPARED)}")
-    from .baselines import mpc_config
-
     mpc = mpc_config(assets.get("preset", "reduced"))     # ci: a small CEM; reduced, paper: Appendix B's
     jobs = []
     for goal in goals:

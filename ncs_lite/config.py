@@ -15,10 +15,35 @@ import copy
 import math
 import typing
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from typing import Literal
 
 __all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "MixtureConfig",
            "TrainConfig", "DSlateConfig", "NCSConfig", "PRESETS", "get_preset", "from_dict", "to_dict",
-           "table2_rows", "apply_overrides", "parse_override", "ncs_config"]
+           "table2_rows", "apply_overrides", "parse_override", "ncs_config", "ALIGN_RULES", "COLOR_AUGMENTS",
+           "EDGE_ACTIONS", "ENTITY_STATES", "MIXTURE_ALPHAS", "MIXTURE_APPEARANCES", "MIXTURE_ERRORS",
+           "SLOT_POSITIONS"]
+
+
+# ------------------------------------------------------------------ the values a choice takes
+# A field that picks one of a few behaviours has a `Literal` type; the tuple beside it is what
+# `validate` checks and what the code acting on the choice imports (the models, data/augment.py,
+# ncs/), so this module, which every stage reads, imports none of them.
+MixtureAlpha = Literal["decoder", "attention"]    # MixtureConfig.alpha (models/mixture_decoder.py)
+MixtureAppearance = Literal["slot", "type"]       # MixtureConfig.appearance
+MixtureError = Literal["mixed", "per_slot"]       # how DSlate.mixture_error scores the paint
+ColorAugment = Literal["none", "channels", "channels_gamma"]   # TrainConfig.color_augment (data/augment.py)
+EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
+SlotPosition = Literal["attention", "assigned"]   # NCSConfig.slot_position (ncs/perception.py)
+AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
+EdgeAction = Literal["most_common", "nearest", "compose", "readout"]   # NCSConfig.edge_action (ncs/graph.py)
+MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
+MIXTURE_APPEARANCES = typing.get_args(MixtureAppearance)
+MIXTURE_ERRORS = typing.get_args(MixtureError)
+COLOR_AUGMENTS = typing.get_args(ColorAugment)
+ENTITY_STATES = typing.get_args(EntityState)
+SLOT_POSITIONS = typing.get_args(SlotPosition)
+ALIGN_RULES = typing.get_args(AlignRule)
+EDGE_ACTIONS = typing.get_args(EdgeAction)
 
 
 @dataclass
@@ -97,13 +122,13 @@ class MixtureConfig:
     paints a patch per grid position; mixing weights that sum to 1 over slots combine them."""
     weight: float = 0.0         # loss weight; 0 = off (the paper)
     hidden: int = 128           # MLP width
-    alpha: str = "decoder"      # mixing weights: "decoder" = painted alpha logits on the token
+    alpha: MixtureAlpha = "decoder"  # mixing weights: "decoder" = painted alpha logits on the token
     #                             grid; "attention" = slot attention's masks on its own grid
     foreground_weight: float = 1.0  # weight of pixels far from the image's median colour in
     #                             the reconstruction (1 = plain sum), see DSlate.mixture_error
-    appearance: str = "slot"    # what a slot paints: "slot" = from the whole slot and the
+    appearance: MixtureAppearance = "slot"  # what a slot paints: "slot" = from the whole slot and the
     #                             position; "type" = one look from z alone (mixture_decoder.py)
-    error: str = "mixed"        # the reconstruction error: "mixed" = of the mixed image (Locatello
+    error: MixtureError = "mixed"  # the reconstruction error: "mixed" = of the mixed image (Locatello
     #                             et al.); "per_slot" = of each slot's own patches, weighted by
     #                             its mixing weight (a mixture likelihood, as in MONet): two
     #                             slots cannot blend their looks into a third colour, so a slot
@@ -139,7 +164,7 @@ class TrainConfig:
     polish_steps: int = 0
     polish_lr: float = 2e-4
     polish_foreground_weight: float = 20.0
-    polish_mixture_error: str = "mixed"  # the mixture error of the polish steps (see
+    polish_mixture_error: MixtureError = "mixed"  # the mixture error of the polish steps (see
     #                             MixtureConfig.error): "per_slot" there splits slots that
     #                             blend two similar colours, once the cubes have slots
     # dynamics phase (kit, not in the paper; see `reduced`): steps after the polish that train
@@ -167,7 +192,7 @@ class TrainConfig:
     # "none"; "channels" = the mixture loss reads each video with its RGB channels in a
     # random order; "channels_gamma" = and each channel raised to a random power. The
     # decoder, dynamics and dVAE read the true colours (why: docs/recipe.md, `train.color_augment`)
-    color_augment: str = "none"
+    color_augment: ColorAugment = "none"
 
     def main_steps(self) -> int:
         """Optimizer steps of the schedule: epochs x episodes per epoch / batch size."""
@@ -251,18 +276,18 @@ class DSlateConfig:
         if self.image_size % self.slots.encoder_stride:
             raise ValueError(f"image_size ({self.image_size}) must be divisible by slots.encoder_stride "
                              f"({self.slots.encoder_stride})")
-        from .models.mixture_decoder import ERRORS
-
         for name in ("mixture.error", "train.polish_mixture_error"):
-            if _field(self, name) not in ERRORS:
-                raise ValueError(f"{name} must be {' or '.join(map(repr, ERRORS))}, got {_field(self, name)!r}")
-        if self.mixture.alpha not in ("decoder", "attention"):
-            raise ValueError(f"mixture.alpha must be 'decoder' or 'attention', got {self.mixture.alpha!r}")
+            if _field(self, name) not in MIXTURE_ERRORS:
+                raise ValueError(f"{name} must be {' or '.join(map(repr, MIXTURE_ERRORS))}, got {_field(self, name)!r}")
+        if self.mixture.alpha not in MIXTURE_ALPHAS:
+            raise ValueError(f"mixture.alpha must be {' or '.join(map(repr, MIXTURE_ALPHAS))}, "
+                             f"got {self.mixture.alpha!r}")
         if self.slots.position_state and self.slots.state_dim < 4:
             raise ValueError("slots.position_state fills 4 state features with where the slot attends "
                              f"and needs slots.state_dim >= 4, got {self.slots.state_dim}")
-        if self.mixture.appearance not in ("slot", "type"):
-            raise ValueError(f"mixture.appearance must be 'slot' or 'type', got {self.mixture.appearance!r}")
+        if self.mixture.appearance not in MIXTURE_APPEARANCES:
+            raise ValueError(f"mixture.appearance must be {' or '.join(map(repr, MIXTURE_APPEARANCES))}, "
+                             f"got {self.mixture.appearance!r}")
         if self.mixture.appearance == "type" and self.mixture.alpha != "attention":
             raise ValueError("mixture.appearance 'type' paints without a position and needs "
                              f"mixture.alpha 'attention', got {self.mixture.alpha!r}")
@@ -288,8 +313,6 @@ class DSlateConfig:
                              "(no renderer)")
         if self.train.precision not in ("auto", "bf16", "fp32"):
             raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
-        from .data.augment import COLOR_AUGMENTS
-
         if self.train.color_augment not in COLOR_AUGMENTS:
             raise ValueError(f"train.color_augment must be one of {', '.join(map(repr, COLOR_AUGMENTS))}, "
                              f"got {self.train.color_augment!r}")
@@ -355,6 +378,8 @@ def _check_field_types(cfg, where: str = "") -> None:
             _check_field_types(value, name + ".")
             continue
         kind = hints.get(f.name)
+        if typing.get_origin(kind) is Literal:          # a choice: its values' type here, which one in validate
+            kind = type(typing.get_args(kind)[0])
         if kind is bool:
             ok, expected = isinstance(value, bool), "a bool"
         elif kind is int:
@@ -383,20 +408,20 @@ class NCSConfig:
     slots: int | None = None    # slots an agent reads every scene with, whatever its object count
     #                             (Fig. 9's slot axis); None = objects + extra_slots as above
     seed: int = 0               # k-means seed
-    state: str = "mask"         # an entity's state s, a column of Table 3: "mask" = the slot-attention
+    state: EntityState = "mask"  # an entity's state s, a column of Table 3: "mask" = the slot-attention
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
-    slot_position: str | None = None  # with slot states, where a slot is: "attention" (the model's
+    slot_position: SlotPosition | None = None  # with slot states, where a slot is: "attention" (the model's
     #                             s) or "assigned" (the cells it wins, one slot per object plus
     #                             the floor's); None = the model's env's (ncs.perception.
     #                             SLOT_POSITION_BY_ENV: "assigned" block-rearrange)
-    align: str = "near"         # which pairs of align's matching are constraints (ncs.policy.match):
+    align: AlignRule = "near"   # which pairs of align's matching are constraints (ncs.policy.match):
     #                             "near" = those whose types are closer than a quarter of the
     #                             scene's median type distance (the kit's; a partial goal's
     #                             unconstrained cubes are no constraints), "hungarian" = all of
     #                             them (the paper's plain matching), "either" / "mutual" = one /
     #                             both entities the other's nearest type (the rules: ncs/policy.py)
-    edge_action: str | None = None  # how an edge becomes an action (ncs.graph): "most_common"
+    edge_action: EdgeAction | None = None  # how an edge becomes an action (ncs.graph): "most_common"
     #                             (grid cells), or from the states of the graph's transitions,
     #                             "nearest", "compose" or "readout" (continuous positions); None =
     #                             the graph's when acting, the env's when building
@@ -412,13 +437,8 @@ class NCSConfig:
                 continue
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"ncs.{name} must be an integer >= {low}, got {value!r}")
-        states = ("mask", "slot")   # = sorted(ncs.graph.METRICS_BY_STATE), checked by a test
-        if self.state not in states:
-            raise ValueError(f"ncs.state must be one of {', '.join(map(repr, states))}, got {self.state!r}")
-        from .ncs.graph import EDGE_ACTIONS
-        from .ncs.perception import SLOT_POSITIONS
-        from .ncs.policy import ALIGN_RULES
-
+        if self.state not in ENTITY_STATES:
+            raise ValueError(f"ncs.state must be one of {', '.join(map(repr, ENTITY_STATES))}, got {self.state!r}")
         if self.slot_position is not None and self.slot_position not in SLOT_POSITIONS:
             raise ValueError(f"ncs.slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))} "
                              f"or None (the env's), got {self.slot_position!r}")
@@ -524,6 +544,15 @@ def _ci() -> DSlateConfig:
 
 
 PRESETS = {"ci": _ci, "reduced": _reduced, "paper": _paper}
+# Seeded tasks per point of Figs. 10 and 11 at each preset (`stress.TASKS`; `reproduce fig10
+# --episodes`, `--mpc-episodes`; docs.py names them when it rebuilds a table's command). MPC
+# plans with 2,500 dynamics rollouts a step (x its planning horizon) and runs every episode to
+# its horizon, so `reduced` runs it on the first `mpc` tasks of each set, sized for about 10
+# minutes of fig10's MPC cells in two one-thread processes (1, 2, 4, 8x: 60 steps a task at
+# each of 3 planning horizons; 0.11 / 0.17 / 0.23 s a step on the shipped model, 2 cores); the
+# other methods read the whole set
+STRESS_TASKS = {"ci": {"tasks": 2, "mpc": 2}, "reduced": {"tasks": 100, "mpc": 40},
+                "paper": {"tasks": 100, "mpc": 100}}
 # What a preset changes on an environment other than block-rearrange, each with its reason
 # (`get_preset(name, env)`; the same as `--set` overrides, recorded in the checkpoint's config).
 ENV_OVERRIDES = {

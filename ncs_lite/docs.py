@@ -29,13 +29,15 @@ import statistics
 import sys
 from pathlib import Path
 
+from .config import STRESS_TASKS, NCSConfig
+from .envs.block_rearrange import BlockRearrangeConfig
 from .utils import REPO_DIR, atomic_write_text
 
 __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "readme_blocks",
            "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
 
 BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
-# `reproduce`'s defaults (ncs_lite/reproduce.py, `add_subcommand` and `seeds_table`): a
+# `reproduce`'s defaults (its options in ncs_lite/__main__.py, and `reproduce.seeds_table`): a
 # command names an argument only where its table differs from them
 DEFAULT_EPISODES = 100
 DEFAULT_OBJECTS = {"block-rearrange": [4, 7], "robogym-rearrange": [4, 5, 6, 7]}
@@ -233,8 +235,6 @@ def _is_seeds(name: str) -> bool:
 def _ncs_overrides(table: dict) -> list[str]:
     """The `--set ncs.*` a seeds table was read with: its `ncs` section against NCSConfig's
     defaults (tables written before `ncs_overrides` was recorded hold only the section)."""
-    from .config import NCSConfig
-
     default = NCSConfig()
     out = []
     for field, value in sorted((table.get("ncs") or {}).items()):
@@ -298,12 +298,10 @@ def table_command(path: str, table: dict) -> str:
     elif name.startswith("fig9_"):
         args = ["reproduce", "fig9"] + (["--preset", preset] if preset != DEFAULT_PRESET else [])
     elif name.startswith(("fig10_", "fig11_")):
-        from .stress import TASKS
-
         args = ["reproduce", name.split("_")[0]]
         if preset != DEFAULT_PRESET:
             args += ["--preset", preset]
-        sizes = TASKS.get(preset, {})
+        sizes = STRESS_TASKS.get(preset, {})
         for key, flag, default in (("episodes", "--episodes", sizes.get("tasks")),
                                    ("mpc_episodes", "--mpc-episodes", sizes.get("mpc"))):
             if table.get(key) is not None and table[key] != default:
@@ -629,9 +627,7 @@ def render_results_block(tables: dict) -> str:
     head = _headline_rows(tables)
     if head:
         counts = sorted({k for _, _, cells, _ in head for k in cells})
-        from .envs.block_rearrange import BlockRearrangeConfig     # the horizon every table's tasks use
-
-        horizon = BlockRearrangeConfig.horizon_multiplier
+        horizon = BlockRearrangeConfig.horizon_multiplier      # the horizon every table's tasks use
         lines += [f"Share of seeded tasks solved (complete goals, horizon {horizon:g}x the fewest moves). Over "
                   "training seeds: mean ± sd (worst seed); otherwise the value with its 95 % Wilson interval.", ""]
         body = [[f"{env}: {label}", *(cells.get(k, "–") for k in counts), f"`{command}`"]

@@ -13,12 +13,23 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from .baselines import (BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, MPCConfig, NFAgent, RandomAgent,
+                        RandomObjectAgent, SetGraph)
+from .cache import cached, code_digest, digest
+from .config import NCSConfig
 from .envs import make
+from .envs.common import outside_action_space
+from .metrics import in_floor_slot, shared_with_another, slot_assignment
+from .ncs.graph import TransitionGraph
+from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, OraclePerception, acting_restarts,
+                             acting_slot_position, built_slot_position)
+from .ncs.policy import NCSAgent
+from .sweeps import run_sweep
 from .utils import atomic_write_text, progress
 
 # what a step did (`step_outcome`), counted per episode
@@ -287,9 +298,6 @@ def learned_perception(model, num_objects: int, ncs=None):
     (an `NCSConfig`, default the paper's reading). Slot states read from the cells each slot
     wins (`ncs.slot_position` "assigned") get no more slots than that: a spare slot would win
     a few cells of a cube (`SLOT_POSITION_BY_ENV`)."""
-    from .config import NCSConfig
-    from .ncs.perception import DSlatePerception, acting_restarts, acting_slot_position
-
     ncs = ncs or NCSConfig()
     position = acting_slot_position(ncs, model)
     slots = num_objects + ncs.extra_slots
@@ -305,8 +313,6 @@ def state_features(method: str, state: str, model=None) -> int | None:
     """How many numbers a state has that the graph agent `method` reads: a pooled mask
     (STATE_GRID^2) or, for slot states, the oracle's position (3) or the model's state half
     (its state_dim); None when that is not known (no model)."""
-    from .ncs.perception import STATE_GRID
-
     if state == "mask":
         return STATE_GRID ** 2
     if method.endswith("oracle"):
@@ -319,8 +325,6 @@ def check_graph_reading(graph, method: str, ncs, model=None) -> None:
     the same kind and size of state (`TransitionGraph.check_state`) and, for a model's slot
     states, the same `slot_position` (`built_slot_position`; a graph that does not say is
     not checked)."""
-    from .ncs.perception import acting_slot_position, built_slot_position
-
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
     built = built_slot_position(graph.info)
     if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
@@ -333,8 +337,6 @@ def check_graph_reading(graph, method: str, ncs, model=None) -> None:
 def check_graph_actions(graph, action_space) -> None:
     """ValueError unless every edge action of `graph` (NCS's or NF's) lies in `action_space`:
     a graph of another env, or a spoilt file without a digest, would be refused mid-episode."""
-    from .envs.common import outside_action_space
-
     actions = np.asarray([a for labels in graph.edges.values() for a in labels], np.float32).reshape(-1, 6)
     outside = outside_action_space(actions, action_space)
     if outside.any():
@@ -356,15 +358,6 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on. MPC
     always reads slot states as the model's s (`slot_position` "attention": it rolls whole
     slots through the dynamics, which learned on them)."""
-    from dataclasses import replace
-
-    from .baselines import (BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, NFAgent, RandomAgent,
-                            RandomObjectAgent, SetGraph)
-    from .config import NCSConfig
-    from .ncs.graph import TransitionGraph
-    from .ncs.perception import ORACLE_STATES, OraclePerception
-    from .ncs.policy import NCSAgent
-
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     given = {"graph": graph, "model": model, "policy": policy}
@@ -413,15 +406,10 @@ def evaluate_method(method: str, tasks: TaskSet, *, graph=None, model=None, seed
     run stored them under the same method, task set, seed, settings, graph, model and policy
     (their digests) and code (EVALUATION_CODE); otherwise they are computed and stored.
     """
-    from .baselines import MPCConfig
-    from .config import NCSConfig
-
     make = agent_factory(method, graph=graph, model=model, seed=seed, ncs=ncs, policy=policy, mpc=mpc)
     name = label or method
     if not cache:
         return evaluate(make, tasks, name)
-    from .cache import cached, code_digest, digest
-
     ncs = ncs or NCSConfig()
     needs = NEEDS[method]
     key = {"method": method, "label": name, "tasks": asdict(tasks), "seed": seed,
@@ -446,8 +434,6 @@ def evaluate_methods(jobs, workers: int | None = None, first=None, desc: str = "
     run side by side in `workers` processes (`sweeps.run_sweep` on this machine: task sets are
     seeded, so the rows are a serial run's, bit for bit); `first`: the order to start them
     (costliest first)."""
-    from .sweeps import run_sweep
-
     return run_sweep(evaluate_job, jobs, workers=workers, first=first, desc=desc)
 
 
@@ -461,9 +447,6 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
     its first step: the same perception (`learned_perception`), seeded, so the same
     restart. Ground truth is read here to *measure* only. Cached like `evaluate_method`.
     """
-    from .config import NCSConfig
-    from .metrics import in_floor_slot, shared_with_another, slot_assignment
-
     perception = learned_perception(model, tasks.num_objects, ncs)
 
     def compute():
@@ -482,7 +465,5 @@ def segmentation_failures(model, tasks: TaskSet, ncs=None, cache: bool = True) -
 
     if not cache:
         return compute()
-    from .cache import cached, code_digest, digest
-
     return cached("segmentation", compute, tasks=asdict(tasks), model=digest(model),
                   ncs=asdict(ncs or NCSConfig()), code=code_digest(*EVALUATION_CODE, "metrics.py"))

@@ -6,10 +6,13 @@ repo can be traced to the run that drew it.
 """
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import BoundaryNorm, ListedColormap
 
 from .utils import (REPO_DIR, atomic_path, atomic_write_json, figures_dir, package_versions, provenance,
                     relative_to_repo)
@@ -159,9 +162,6 @@ def token_colours(vocab_size: int, seed: int = 0):
     """(cmap, norm) that give every token id of a `vocab_size` vocabulary one fixed colour,
     the same in every image (pass both to `imshow`). Colours are shuffled so that
     neighbouring ids do not look alike."""
-    from matplotlib import colormaps
-    from matplotlib.colors import BoundaryNorm, ListedColormap
-
     base = colormaps["hsv"](np.linspace(0, 1, vocab_size, endpoint=False))[:, :3]
     shade = 0.55 + 0.45 * (np.arange(vocab_size) % 3) / 2        # vary lightness too
     colours = base * shade[:, None]
@@ -174,8 +174,6 @@ def measured_time(notebook: str) -> str:
     `make reproduce`: {"seconds": {"NN_name": s, ...}, "commit": ..., "dirty": ...}; a flat
     {"NN_name": s, ...} is read too), as a sentence for the notebook's setup cell, or
     "not measured yet" when the file or the entry is missing."""
-    import json
-
     path = REPO_DIR / "figures" / "notebook_times.json"
     try:
         times = json.loads(path.read_text())

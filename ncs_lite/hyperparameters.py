@@ -17,7 +17,20 @@ job of one sweep (`sweeps.run_sweep`), cached too (`evaluate_method`).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import replace
+
+from .cache import cached, code_digest, digest
+from .comparison import comparison_assets
+from .config import NCSConfig, to_dict
+from .data import load_manifest
+from .evaluation import TaskSet, evaluate_job, summarize
+from .ncs.graph import TransitionGraph, build_graph
+from .ncs.perception import buffer_transitions, graph_perception, slot_read
+from .stress import all_of, gap_claim
+from .sweeps import check_executor, run_sweep
+from .tables import table_dir, write_table
+from .utils import REPO_DIR, provenance, relative_to_repo
 
 __all__ = ["AXES", "fig9_jobs", "fig9_table", "graph_like"]
 
@@ -41,13 +54,6 @@ def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int 
     (`graph_perception`: `model`'s entities with the slots the graph recorded, or ground
     truth for an oracle graph, `model` None) and the same settings (`graph.info["ncs"]`). Cached by the transitions, the
     settings and the code."""
-    from .cache import cached, code_digest, digest
-    from .config import NCSConfig
-    from .data import load_manifest
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import buffer_transitions, graph_perception, slot_read
-    from .utils import REPO_DIR
-
     info = graph.info
     ncs = NCSConfig(**info["ncs"])
     ncs = replace(ncs, clusters=clusters or ncs.clusters)
@@ -79,8 +85,6 @@ def fig9_jobs(assets: dict, preset: str = "reduced", seed: int = 0) -> tuple[lis
     evaluation jobs (`evaluation.evaluate_method`'s arguments), one per point, in order: for each axis of AXES[preset] and each value, learned
     NCS and, on the graph axes, the oracle. `assets`: `comparison.comparison_assets(preset,
     env="robogym-rearrange")`."""
-    from .evaluation import TaskSet
-
     axes, tasks = AXES[preset], TaskSet(env=ENV, num_objects=OBJECTS, episodes=TASKS[preset], seed=seed)
     model, ncs = assets["model"], assets["ncs"]
     points, jobs = [], []
@@ -106,8 +110,6 @@ def fig9_jobs(assets: dict, preset: str = "reduced", seed: int = 0) -> tuple[lis
 def fig9_claims(rows: list[dict], num_objects: int = OBJECTS) -> list[dict]:
     """Appendix D.1's statements, each checked on learned NCS's points of `rows` by the gap
     between two points and its 95% interval (`stress.gap_claim`)."""
-    from .stress import all_of, gap_claim
-
     def point(axis, value):
         r = next(r for r in rows if r["varied"] == axis and r["x"] == value and r["method"] == "ncs")
         return {"label": f"ncs, {value} {axis}", "successes": r["successes"], "episodes": r["episodes"]}
@@ -151,20 +153,11 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
     and its 95% Wilson interval, the mean share of constraints satisfied when the harness
     reports it, random-fallback share, the graph's edges), and Appendix D.1's claims checked
     on them (`fig9_claims`). The points run as one sweep (`sweeps.run_sweep` on `executor`)."""
-    import time
-
-    from .comparison import comparison_assets
-    from .config import to_dict
-    from .evaluation import evaluate_job, summarize
-    from .reproduce import _table_dir, write_table
-    from .utils import provenance, relative_to_repo
-    from .sweeps import check_executor, run_sweep
-
     check_executor(executor)
     if preset not in AXES:
         raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(AXES)}")
     name = f"fig9_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused first
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused first
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = fig9_jobs(assets, preset, seed)

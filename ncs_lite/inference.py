@@ -6,6 +6,9 @@
     next_slots = model.predict(out.slots, actions)  # actions (B, 6)
 
 `infer` checks its input (ValueError naming the bad shape or dtype and what was expected).
+The checkpoint format lives here with its reader (`read_checkpoint`), so that everything
+downstream reads models without importing the trainer; the notebooks' "load the checkpoint if
+present, else train" is `training.obtain_dslate`.
 How the shipped assets were made: the Makefile's asset targets (`make block-graphs`,
 `make baseline-assets`, `make robogym-assets`, `make robogym-baseline-assets`) and
 docs/HISTORY.md, "The shipped block-rearrange checkpoint: how it was made".
@@ -17,12 +20,17 @@ from pathlib import Path
 import torch
 
 from .config import from_dict
-from .models.dslate import DSlate
-from .training import read_checkpoint, resolve_device
-from .utils import PACKAGE_DIR, cache_dir
+from .models.dslate import MODEL_VERSION, DSlate
+from .tensor_files import check_weights, file_kind, load_tensor_file
+from .utils import PACKAGE_DIR
 
-__all__ = ["load_dslate", "obtain_dslate", "shipped_asset", "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH",
-           "SHIPPED_SLOT_GRAPH"]
+__all__ = ["load_dslate", "read_checkpoint", "resolve_device", "shipped_asset", "CHECKPOINT_FORMAT",
+           "SHIPPED_CHECKPOINT", "SHIPPED_GRAPH", "SHIPPED_SLOT_GRAPH", "TRAIN_EPISODES"]
+
+# The dSLATE checkpoint file: `training.train` writes it, `read_checkpoint` reads and checks it
+CHECKPOINT_FORMAT = 1
+CHECKPOINT_KIND = "dslate"                   # files from before the tag have none
+DIGESTED = ("model", "optimizer", "rng")     # the tensors the stored content digest covers
 
 # The `reduced` block-rearrange checkpoint shipped with the kit (module docstring: how it was made).
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "dslate_block_rearrange_reduced.pt"
@@ -56,8 +64,44 @@ _SHIPPED = {
                                     ("nf", "slot"): ROBOGYM_NF_GRAPH, ("nf-oracle", "slot"): ROBOGYM_NF_ORACLE_GRAPH}},
 }
 SHIPPED_ENVS = tuple(_SHIPPED)
+SHIPPED_MODELS = {env: shipped["model"] for env, shipped in _SHIPPED.items()}
 # 4-object training episodes per preset (`reduced`: as many as the shipped checkpoint's buffer)
 TRAIN_EPISODES = {"ci": 16, "reduced": 5000, "paper": 5000}
+
+
+def resolve_device(device=None) -> torch.device:
+    """The given device, else CUDA when available, else CPU."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"unknown device {device!r}; expected 'cpu' or 'cuda' (or 'cuda:N')") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {str(device)!r} asked for, but this torch build sees no CUDA GPU; use 'cpu'")
+    if device.type not in ("cpu", "cuda"):
+        raise ValueError(f"device {str(device)!r} is not supported; expected 'cpu' or 'cuda'")
+    return device
+
+
+def read_checkpoint(path: str | Path, map_location="cpu") -> dict:
+    """Load and check a dSLATE checkpoint (weights_only=True). ValueError naming `path` when
+    it is not one (naming what it is), was written by an incompatible version of the code,
+    does not match its content digest, or holds non-finite weights."""
+    path = Path(path)
+    ckpt = load_tensor_file(path, "dSLATE checkpoint", "train one with `python -m ncs_lite train`",
+                            map_location=map_location)
+    if ckpt.get("kind", CHECKPOINT_KIND) != CHECKPOINT_KIND or "model" not in ckpt or "config" not in ckpt:
+        raise ValueError(f"{path} is not a dSLATE checkpoint (kind {CHECKPOINT_KIND!r} with 'model' and "
+                         f"'config'); it holds {file_kind(ckpt)}")
+    if ckpt.get("format") != CHECKPOINT_FORMAT or ckpt.get("model_version") != MODEL_VERSION:
+        raise ValueError(f"{path} was written by another version of the code: checkpoint format "
+                         f"{ckpt.get('format')!r} / model {ckpt.get('model_version')!r}, this code "
+                         f"expects format {CHECKPOINT_FORMAT} / model {MODEL_VERSION!r}; retrain it")
+    step = ckpt.get("step", 0)
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise ValueError(f"{path} is corrupted: its step must be an integer >= 0, got {step!r}")
+    return check_weights(ckpt, path, DIGESTED)
 
 
 def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
@@ -82,70 +126,6 @@ def load_dslate(path: str | Path = SHIPPED_CHECKPOINT, device=None) -> DSlate:
     model.checkpoint_info = {k: ckpt.get(k) for k in ("step", "env", "data", "precision", "seconds",
                                                       "last", "code_version", "overrides")}
     return model.to(device).eval()
-
-
-def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
-                  env: str = "block-rearrange", device=None) -> tuple[DSlate, Path]:
-    """The notebooks' "load the checkpoint if present, else train": returns (model, path).
-
-    * `reduced` without `train_from_scratch`: `env`'s shipped checkpoint, when present.
-    * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
-      `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
-      `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
-      reused (unless `train_from_scratch`), an interrupted one is resumed, and one made with
-      another config, env, buffer or training code is retrained; each decision is printed.
-    With preset="reduced", seed=0 this is the command that made the shipped checkpoint.
-    """
-    from .config import get_preset
-    from .data import cached_buffer
-    from .training import train
-
-    shipped = _SHIPPED.get(env, {}).get("model")
-    if preset == "reduced" and not train_from_scratch and shipped is not None and shipped.exists():
-        return load_dslate(shipped, device), shipped
-    cfg = get_preset(preset, env)
-    cfg.train.seed = int(seed)
-    path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
-    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
-    resume = force = False
-    if path.exists() and not train_from_scratch:
-        why = _unfit(path, cfg, env, data)
-        if why is None:
-            step = int(read_checkpoint(path)["step"])
-            if step >= cfg.train.total_steps():
-                return load_dslate(path, device), path
-            resume = True
-            print(f"obtain_dslate: resuming {path} at step {step} of {cfg.train.total_steps()}")
-        else:
-            force = True
-            print(f"obtain_dslate: retraining {path} from scratch: {why}")
-    elif path.exists():
-        force = True
-        print(f"obtain_dslate: retraining {path} from scratch (train_from_scratch=True)")
-    train(cfg, data, path, resume=resume, force=force, device=device, env=env)
-    return load_dslate(path, device), path
-
-
-def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
-    """Why the cached checkpoint at `path` cannot be reused or resumed, or None."""
-    from .config import saved_config_diff
-    from .data import manifest_hash
-    from .training import training_code_version
-
-    try:
-        ckpt = read_checkpoint(path)
-    except ValueError as e:
-        return f"it cannot be read ({e})"
-    diff = saved_config_diff(ckpt["config"], cfg)
-    if diff:
-        return f"it was trained with another config ({'; '.join(diff[:3])})"
-    if ckpt.get("env") != env:
-        return f"it was trained on {ckpt.get('env')!r}, not {env!r}"
-    if (ckpt.get("data") or {}).get("manifest_sha256") != manifest_hash(data):
-        return "it was trained on another buffer (manifest hash differs)"
-    if (ckpt.get("code_version") or {}).get("training_code") != training_code_version():
-        return "the training code changed since it was trained"
-    return None
 
 
 def shipped_asset(env: str, method: str, need: str, state: str = "mask") -> Path:

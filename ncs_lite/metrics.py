@@ -13,6 +13,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .data import load_buffer
+from .envs.block_rearrange import COLOR_NAMES, PALETTE
+from .envs.objects import COLOUR_NAMES, COLOURS
+
 __all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
            "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
 
@@ -175,8 +179,6 @@ def evaluate_segmentation(model, directory, num_slots: int | None = None, iterat
     pass one more than the number of objects (slot attention works for any K).
     Returns {"fg_ari": mean, "std": ..., "sem": ..., "images": n, "num_slots": K, "iterations": it}.
     """
-    from .data import load_buffer
-
     buf = load_buffer(directory)
     frames = buf["frames"][:episodes].reshape(-1, *buf["frames"].shape[2:])     # (E*5, H, W, 3)
     masks = buf["masks"][:episodes].reshape(-1, *buf["masks"].shape[2:])        # (E*5, k, H, W)
@@ -228,9 +230,6 @@ def _r2(pred, target) -> float:
 def _colour_ids(colors: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """(E, k, 3) object colours -> (E, k) integer ids of the distinct colours, and a name per
     id (the colour's name in block-rearrange's or robogym-rearrange's palette, if it is one)."""
-    from .envs.block_rearrange import COLOR_NAMES, PALETTE
-    from .envs.objects import COLOUR_NAMES, COLOURS
-
     palette, palette_names = np.concatenate([PALETTE, COLOURS]), (*COLOR_NAMES, *COLOUR_NAMES)
     flat = np.round(np.asarray(colors, np.float64).reshape(-1, 3), 4)
     distinct, ids = np.unique(flat, axis=0, return_inverse=True)

@@ -17,19 +17,38 @@ The segmentation and success measures are the ones notebooks 03 and 06 report.
 """
 from __future__ import annotations
 
-import csv
-import io
 import json
+import time
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
+from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
+                         run_comparison)
+from .config import NCSConfig, apply_overrides, from_dict, get_preset, ncs_config, saved_config_diff, to_dict
+from .data import cached_buffer, load_buffer, manifest_hash
+from .docs import write_docs
+from .evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
+from .hyperparameters import AXES, fig9_table
+from .inference import (ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, SHIPPED_CHECKPOINT,
+                        TRAIN_EPISODES, load_dslate, read_checkpoint)
+from .metrics import (_colour_ids, factorization_scores, foreground_ari, in_floor_slot, shared_slot_pairs,
+                      shared_with_another, slot_assignment)
+from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
+from .ncs.perception import (ORACLE_STATES, DSlatePerception, OraclePerception, acting_restarts, buffer_transitions,
+                             slot_read)
+from .stress import TASKS, stress_table
+from .sweeps import check_executor
+from .tables import table_dir, write_table
+from .training import EXTENDABLE, train
+from .utils import (REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress, provenance,
                     relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
-           "mean_sd", "add_subcommand"]
+           "mean_sd"]
 
 HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
 
@@ -48,10 +67,6 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     sharing one, most first), as notebook 03 measures them: `images` frames of the
     held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
     model's K), `restarts` starts per image."""
-    from .data import cached_buffer, load_buffer
-    from .metrics import (_colour_ids, foreground_ari, in_floor_slot, shared_slot_pairs, shared_with_another,
-                          slot_assignment)
-
     data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
                                      seed=seed + HELDOUT_SEED))
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
@@ -73,32 +88,6 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
             "absorbed": float(in_floor_slot(owner, background).mean()), "shared": float(shared[owner >= 0].mean()),
             "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
             "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
-
-
-# ---------------------------------------------------------------------- writing a table
-def _table_dir(out_dir) -> Path:
-    return Path(out_dir) if out_dir else figures_dir() / "tables"
-
-
-def write_table(name: str, rows: list[dict], meta: dict, out_dir=None, allow_dirty=False) -> Path:
-    """figures/tables/<name>.csv + .json, refusing a dirty tree for the committed folder."""
-    folder = _table_dir(out_dir)
-    made = provenance(folder / f"{name}.json", allow_dirty)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write_text(folder / f"{name}.csv", buf.getvalue())
-    atomic_write_json(folder / f"{name}.json", {"table": name, "rows": rows, **meta, **made})
-    if out_dir is None:                 # the committed tables: the README's blocks follow them
-        _write_docs()
-    return folder / f"{name}.csv"
-
-
-def _write_docs() -> None:
-    from .docs import write_docs
-
-    write_docs()
 
 
 # the sources a stage's value depends on: any edit there recomputes every stage
@@ -160,18 +149,6 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     lacks only the recipe's later phases (e.g. the render phase) is kept and extended.
     `overrides` of the `ncs` section (`ncs.restarts=8`) set how NCS reads the models and builds
     its graphs; the others set the recipe. Hours on a CPU."""
-    from .config import apply_overrides, get_preset, ncs_config, to_dict
-    from .data import cached_buffer, load_buffer
-    from .evaluation import TaskSet, agent_factory, evaluate, summarize
-    from .inference import load_dslate
-    from .metrics import factorization_scores
-    from .ncs.perception import DSlatePerception, acting_restarts
-    from .training import read_checkpoint, train
-
-    from .comparison import CI_CLUSTERS, graph_episodes_of
-    from .inference import TRAIN_EPISODES
-    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
-
     block = env == "block-rearrange"
     runs = Path(runs) if runs else cache_dir() / ("seeds" if block else f"seeds-{env}")
     ncs_overrides = [o for o in overrides if str(o).startswith("ncs.")]
@@ -279,10 +256,6 @@ def heldout_reconstruction_error(model, env: str, images: int = 200) -> float:
     """How badly the model's slots explain held-out frames (`DSlate.reconstruction_error` per
     image, one start, averaged over the first `images` frames of the 4-object held-out buffer):
     the rule that picks the shipped seed, which reads only images."""
-    import torch
-
-    from .data import cached_buffer, load_buffer
-
     data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=4, seed=HELDOUT_SEED))
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
     errors = []
@@ -297,9 +270,6 @@ def _graph_stage(path: Path, key: dict, make_perception, data, ncs, env: str, wh
     """The graph at `path` when it was built from `key`; else built from the buffer at `data`
     as `make_perception()` reads it (the same cached buffer pass and build as `python -m
     ncs_lite graph`), and saved there with its key."""
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import buffer_transitions, slot_read
-
     graph = TransitionGraph.load(path) if path.exists() else None
     if graph is None or graph.info.get("key") != key:
         print(f"{what}", flush=True)
@@ -315,12 +285,6 @@ def _graph_stage(path: Path, key: dict, make_perception, data, ncs, env: str, wh
 def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_episodes: int) -> dict:
     """The position oracle's (a graph on ground-truth states of the graph buffer) and Random's
     success on the seeds table's tasks, cached in `runs`."""
-    from dataclasses import asdict, replace
-
-    from .data import cached_buffer
-    from .evaluation import TaskSet, agent_factory, evaluate, summarize
-    from .ncs.perception import ORACLE_STATES, OraclePerception
-
     oracle_ncs = replace(ncs, slot_position=None)
     key = {"episodes": graph_episodes, "ncs": asdict(oracle_ncs), "code": source_hash(*STAGE_CODE)}
     graph = _graph_stage(runs / "graph-oracle.pt", key, lambda: OraclePerception(ORACLE_STATES[ncs.state]),
@@ -343,9 +307,6 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
     """A seed's run of an earlier recipe that differs from `cfg` only in fields of its later
     phases (`training.EXTENDABLE`, e.g. the render phase) is kept as `dslate-step-N.pt` (and
     its log) for `seeds` to extend; any other difference is refused."""
-    from .config import from_dict, saved_config_diff
-    from .training import EXTENDABLE, read_checkpoint
-
     ckpt = read_checkpoint(ckpt_path)
     differ = saved_config_diff(ckpt["config"], cfg)
     if not differ:
@@ -374,14 +335,6 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
     shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot
     inference over the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
     per point."""
-    from .comparison import GRAPH_EPISODES
-    from .config import NCSConfig, to_dict
-    from .data import cached_buffer, manifest_hash
-    from .evaluation import TaskSet, agent_factory, evaluate, summarize
-    from .inference import SHIPPED_CHECKPOINT, load_dslate
-    from .ncs.graph import build_graph
-    from .ncs.perception import DSlatePerception, buffer_transitions
-
     checkpoint = Path(checkpoint or SHIPPED_CHECKPOINT)
     model = load_dslate(checkpoint)
     data = Path(data) if data else cached_buffer(GRAPH_EPISODES["reduced"], num_objects=4, seed=0)
@@ -420,7 +373,7 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
     times.update(preset=preset, **provenance(path, allow_dirty=True))
     atomic_write_json(path, times)
     if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
-        _write_docs()
+        write_docs()
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
@@ -429,15 +382,10 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     one row per method, goal kind and object count (success, 95% Wilson interval, the mean share
     of constraints satisfied with its interval, random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
     the per-episode rows go beside it (`_episodes.csv`)."""
-    import time
-
-    from .comparison import EPISODES, MPC_EPISODES, comparison_assets, run_comparison
-    from .evaluation import summarize, write_csv
-
     episodes = episodes or EPISODES[preset]
     mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
     name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
     assets = comparison_assets(preset, env=env)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
@@ -445,7 +393,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
             "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}
              for r in summarize(rows)]
-    write_csv(rows, _table_dir(out_dir) / f"{name}_episodes.csv")
+    write_csv(rows, table_dir(out_dir) / f"{name}_episodes.csv")
     meta = {"env": env, "preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
             "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
                        if Path(v).is_file()},
@@ -466,18 +414,10 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     share of constraints satisfied (`<method>_<k>_constraints`) and the share of steps that
     placed an object at its goal and that picked nothing (`evaluation.step_outcome`). Each
     evaluation is cached by its inputs (`evaluate_method`)."""
-    from .config import NCSConfig, to_dict
-    from .data import cached_buffer, load_buffer
-    from .evaluation import TaskSet, evaluate_methods, summarize
-    from .inference import ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, load_dslate
-    from .metrics import factorization_scores
-    from .ncs.graph import TransitionGraph
-    from .ncs.perception import acting_restarts
-
     env = "robogym-rearrange"
     paths = {"checkpoint": Path(checkpoint or ROBOGYM_CHECKPOINT), "graph": Path(graph or ROBOGYM_SLOT_GRAPH),
              "oracle_graph": Path(oracle_graph or ROBOGYM_POSITION_GRAPH)}
-    provenance(_table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
+    provenance(table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
     model = load_dslate(paths["checkpoint"])
     learned, oracle = TransitionGraph.load(paths["graph"]), TransitionGraph.load(paths["oracle_graph"])
     ncs = NCSConfig(clusters=learned.num_nodes, state="slot", edge_action=learned.edge_action)
@@ -514,24 +454,13 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
     return {"rows": [row]}
 
 
-def fig9_table(*args, **kwargs) -> dict:
-    """Fig. 9: `hyperparameters.fig9_table(...)`."""
-    from .hyperparameters import fig9_table as table
-
-    return table(*args, **kwargs)
-
-
 def fig10_table(*args, **kwargs) -> dict:
     """Fig. 10: `stress.stress_table("fig10", ...)`."""
-    from .stress import stress_table
-
     return stress_table("fig10", *args, **kwargs)
 
 
 def fig11_table(*args, **kwargs) -> dict:
     """Fig. 11: `stress.stress_table("fig11", ...)`."""
-    from .stress import stress_table
-
     return stress_table("fig11", *args, **kwargs)
 
 
@@ -559,13 +488,6 @@ FLAG_DEFAULTS = {"preset": "reduced", "seeds": [0, 1, 2], "runs": None, "checkpo
 
 def check_table_args(name: str, args) -> None:
     """ValueError naming the argument before any work (a table runs for minutes to hours)."""
-    from .comparison import EPISODES
-    from .hyperparameters import AXES
-    from .inference import TRAIN_EPISODES
-    from .stress import TASKS
-    from .sweeps import check_executor
-    from .utils import check_out_dir
-
     presets = {"seeds": TRAIN_EPISODES, "baselines": EPISODES, "fig9": AXES, "fig10": TASKS, "fig11": TASKS}.get(name)
     if presets is not None and args.preset not in presets:
         raise ValueError(f"unknown preset {args.preset!r} for the {name} table; expected one of {', '.join(presets)}")
@@ -585,6 +507,7 @@ def check_table_args(name: str, args) -> None:
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
     if args.objects is not None:
+        # local: robogym_rearrange imports MuJoCo, slow to load and needed by robogym alone
         from .envs.robogym_rearrange import RobogymRearrangeConfig
 
         for k in args.objects:
@@ -592,8 +515,6 @@ def check_table_args(name: str, args) -> None:
                 RobogymRearrangeConfig(num_objects=k)
             except ValueError as exc:
                 raise ValueError(f"--objects {k}: {exc}") from None
-    from .ncs.graph import STATE_BY_ENV
-
     if args.env not in STATE_BY_ENV:
         raise ValueError(f"unknown --env {args.env!r}; expected one of {', '.join(STATE_BY_ENV)}")
     if args.out_dir is not None:
@@ -622,42 +543,3 @@ def run_table(name: str, args) -> dict:
         return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
                             mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     raise ValueError(f"unknown table {name!r}; tables: {', '.join(TABLES)}")
-
-
-def add_subcommand(subparsers) -> None:
-    from .training import add_run_arguments
-
-    p = subparsers.add_parser("reproduce",
-                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig9, fig10, fig11)",
-                              description=__doc__.split("\n\n")[0])
-    p.add_argument("table", choices=sorted(TABLES))
-    p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
-                   "the assets (and fig10, fig11: the tasks per point)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
-    p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
-                   "<cache>/seeds)")
-    p.add_argument("--checkpoint", help="clusters, robogym: checkpoint (default: the shipped one)")
-    p.add_argument("--graph", help="robogym: the learned NCS graph on slot states (default: the shipped one)")
-    p.add_argument("--oracle-graph", help="robogym: the position oracle's graph (default: the shipped one)")
-    p.add_argument("--episodes", type=int, default=None,
-                   help="tasks per object count (default: 100; baselines: the preset's, reduced 50); fig10, fig11: "
-                   "tasks per point (default: the preset's, ncs_lite.stress.TASKS)")
-    p.add_argument("--mpc-episodes", type=int, default=None,
-                   help="baselines: MPC's tasks per object count (default: the preset's, reduced 25); fig10, "
-                   "fig11: MPC's tasks per point")
-    p.add_argument("--executor", default="local",
-                   help="fig10, fig11: where the sweep's jobs run: local (this machine's worker processes) or "
-                   "submitit (a Slurm job array when Slurm is found, else local processes; needs the "
-                   "`sweeps` extra)")
-    p.add_argument("--sweep-folder", default=None,
-                   help="fig10, fig11 with --executor submitit: the jobs' pickles and logs (default: "
-                   "<cache>/submitit/<job id>)")
-    p.add_argument("--env", default="block-rearrange", help="seeds: the environment to train on; baselines: "
-                   "the environment (its shipped assets)")
-    p.add_argument("--objects", type=int, nargs="+", default=None,
-                   help="robogym, seeds: object counts to evaluate (default: robogym 4 5 6 7, "
-                   "block-rearrange seeds 4 7)")
-    p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
-    add_run_arguments(p)
-    p.set_defaults(func=lambda args: print(json.dumps(run_table(args.table, args), indent=2,
-                                                      default=str)))

@@ -28,8 +28,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from .comparison import PAPER_NCS
-from .evaluation import wilson_interval
+from .baselines import mpc_config
+from .comparison import COMPARED, PAPER_NCS, comparison_assets
+from .config import STRESS_TASKS, to_dict
+from .evaluation import METHODS, NEEDS, TaskSet, evaluate_job, summarize, wilson_interval
+from .sweeps import check_executor, require_submitit, run_sweep
+from .tables import table_dir, write_table
+from .utils import provenance, relative_to_repo, sha256_file
 
 __all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs",
            "gap_claim", "katz_ratio_interval", "newcombe_interval", "ratio_claim", "stress_table", "tasks_per_point"]
@@ -64,12 +69,7 @@ FIGURES = {
                                          "bc", "iql")),
               ("horizon_multiplier", HORIZONS, ("ncs", "ncs-oracle"))),
 }
-# tasks per point: MPC plans with 2,500 dynamics rollouts a step (x its planning horizon) and
-# runs every episode to its horizon, so `reduced` runs it on the first `mpc` tasks of each set,
-# sized for about 10 minutes of fig10's MPC cells in two one-thread processes (1, 2, 4, 8x: 60
-# steps a task at each of 3 planning horizons; 0.11 / 0.17 / 0.23 s a step on the shipped
-# model, 2 cores); the other methods read the whole set
-TASKS = {"ci": {"tasks": 2, "mpc": 2}, "reduced": {"tasks": 100, "mpc": 40}, "paper": {"tasks": 100, "mpc": 100}}
+TASKS = STRESS_TASKS        # tasks per point at each preset: config.py, beside the other presets
 
 
 # ---------------------------------------------------------------------- claims
@@ -231,8 +231,6 @@ def _claims(figure: str, rows: list[dict]) -> list[dict]:
 # ---------------------------------------------------------------------- the sweep
 def available(labels) -> list[str]:
     """The labels whose method this kit has (`evaluation.METHODS`; e.g. "random-object" once added)."""
-    from .evaluation import METHODS
-
     unknown = sorted(set(labels) - set(VARIANTS))
     if unknown:
         raise ValueError(f"unknown methods {unknown}; expected some of {', '.join(VARIANTS)}")
@@ -249,9 +247,6 @@ def tasks_per_point(preset: str, episodes: int | None = None, mpc_episodes: int 
 
 def _asset_kwargs(method: str, assets: dict) -> dict:
     """What `evaluate_method` reads for `method` from `comparison_assets`' dict."""
-    from .comparison import COMPARED
-    from .evaluation import NEEDS
-
     if method in COMPARED:
         needs = COMPARED[method][1]
     elif not NEEDS[method]:
@@ -266,9 +261,6 @@ def _asset_kwargs(method: str, assets: dict) -> dict:
 def cell_jobs(figure: str, assets: dict, preset: str, sizes: dict, methods=None, cache: bool = True):
     """(points, jobs): every point of `figure` as (varied, x, label), and the distinct
     `evaluate_method` jobs (method, TaskSet, kwargs) with, per point, its job's index."""
-    from .baselines import mpc_config
-    from .evaluation import TaskSet
-
     points, jobs, index = [], [], {}
     for varied, values, labels in FIGURES[figure]:
         for label in available([m for m in labels if methods is None or m in methods]):
@@ -316,13 +308,6 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
     95 % Wilson interval, the constraint columns when `summarize` has them), the claims, the
     tasks per point of each method and the assets' hashes. The cells run as one sweep
     (`sweeps.run_sweep` with `executor`), the costliest first."""
-    from .comparison import comparison_assets
-    from .config import to_dict
-    from .evaluation import evaluate_job, summarize
-    from .reproduce import _table_dir, write_table
-    from .sweeps import check_executor, require_submitit, run_sweep
-    from .utils import provenance, relative_to_repo, sha256_file
-
     if figure not in FIGURES:
         raise ValueError(f"unknown figure {figure!r}; expected one of {', '.join(FIGURES)}")
     check_executor(executor)
@@ -330,7 +315,7 @@ def stress_table(figure: str, preset: str = "reduced", executor: str = "local", 
         require_submitit()                      # before the assets are read or built
     sizes = tasks_per_point(preset, episodes, mpc_episodes)
     name = f"{figure}_{preset}"
-    provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
     assets = comparison_assets(preset, env=ENV)
     points, jobs = cell_jobs(figure, assets, preset, sizes, methods, cache)

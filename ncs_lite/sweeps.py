@@ -28,6 +28,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import torch
+
+from .utils import REPO_DIR, cache_dir, progress
+from .workers import default_workers, map_jobs
+
 __all__ = ["EXECUTORS", "SUBMITIT_VERSION", "MissingPackage", "check_executor", "require_submitit", "run_sweep"]
 
 EXECUTORS = ("local", "submitit")
@@ -49,7 +54,7 @@ def check_executor(executor) -> str:
 def require_submitit():
     """The submitit module, or a one-line MissingPackage saying how to install it."""
     try:
-        import submitit
+        import submitit  # local: an optional extra (`.[sweeps]`), imported only for --executor submitit
     except ImportError:
         raise MissingPackage(f"--executor submitit needs the package submitit, which is not installed: "
                              f"pip install 'submitit=={SUBMITIT_VERSION}' (or pip install -e '.[sweeps]'; "
@@ -65,8 +70,6 @@ def _call(_, fn: Callable, job: tuple):
 def _submitit_job(package: str, threads: int, fn: Callable, job: tuple):
     """One submitit job: fn(*job) on the caller's torch thread count, refusing to run another
     copy of the kit than the caller's (an installed one found first would give other rows)."""
-    import torch
-
     here = str(Path(__file__).resolve().parent)
     if here != package:
         raise ValueError(f"this job imported ncs_lite from {here}, the sweep was started from {package}: "
@@ -80,8 +83,6 @@ def _submitit_job(package: str, threads: int, fn: Callable, job: tuple):
 def _kit_on_pythonpath():
     """The jobs (new processes, or Slurm jobs that inherit this environment) import this
     checkout of ncs_lite, wherever the caller's working directory is."""
-    from .utils import REPO_DIR
-
     before = os.environ.get("PYTHONPATH")
     os.environ["PYTHONPATH"] = os.pathsep.join([str(REPO_DIR), *([before] if before else [])])
     try:
@@ -102,10 +103,6 @@ def _result(index: int, job):
 
 def _run_submitit(fn: Callable, jobs: list[tuple], folder, cluster: str | None, workers: int | None,
                   order: list[int], timeout_min: float, desc: str | None, parameters: dict | None) -> list:
-    import torch
-
-    from .utils import cache_dir, progress
-
     submitit = require_submitit()
     folder = Path(folder) if folder is not None else cache_dir() / "submitit" / "%j"
     executor = submitit.AutoExecutor(folder=folder, cluster=cluster)
@@ -124,8 +121,6 @@ def _run_submitit(fn: Callable, jobs: list[tuple], folder, cluster: str | None, 
             for i, job in progress(list(zip(order, submitted)), desc=desc):
                 results[i] = _result(i, job)
             return results
-        from .workers import default_workers
-
         limit = min(workers or default_workers(), len(jobs))
         waiting, running = list(order), {}
         bar = progress(total=len(jobs), desc=f"{desc} ({limit} submitit jobs)")
@@ -160,7 +155,5 @@ def run_sweep(fn: Callable, jobs: Sequence[Sequence[Any]], executor: str = "loca
     if not jobs:
         return []
     if executor == "local":
-        from .workers import map_jobs
-
         return map_jobs(_call, [(fn, job) for job in jobs], workers=workers, first=first, desc=desc)
     return _run_submitit(fn, jobs, folder, cluster, workers, order, timeout_min, desc, parameters)

@@ -54,43 +54,29 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import DSlateConfig, get_preset, saved_config_diff, to_dict
+from .config import DSlateConfig, from_dict, get_preset, saved_config_diff, to_dict
+from .data import EpisodeDataset, cached_buffer, load_manifest, manifest_hash
 from .data.augment import augment_colors
+from .data.buffer import check_actions
+from .envs import ENVIRONMENTS
+from .inference import (CHECKPOINT_FORMAT, CHECKPOINT_KIND, DIGESTED, SHIPPED_MODELS, TRAIN_EPISODES, load_dslate,
+                        read_checkpoint, resolve_device)
 from .models.dslate import LOSSES, MODEL_VERSION, DSlate
 from .models.dvae import cosine_anneal, tau_schedule
-from .utils import (atomic_torch_save, check_out_file, check_weights, file_kind, load_tensor_file,
-                    package_versions, progress, provenance, relative_to_repo, seed_everything, sha256_file,
-                    source_hash, tensor_digest)
+from .tensor_files import atomic_torch_save, tensor_digest
+from .utils import (cache_dir, check_out_file, package_versions, progress, provenance, relative_to_repo,
+                    seed_everything, sha256_file, source_hash)
 
-__all__ = ["train", "add_subcommand", "resolve_device", "resolve_precision", "lr_at",
-           "CHECKPOINT_FORMAT", "read_checkpoint", "build_optimizer", "autocast",
+__all__ = ["train", "obtain_dslate", "resolve_precision", "lr_at", "build_optimizer", "autocast",
            "training_code_version", "run_lock"]
 
 # The sources whose changes can change a training run (model, loop, config, data, rendering).
 TRAINING_CODE = ("models", "training.py", "config.py", "data", "envs")
 
-CHECKPOINT_FORMAT = 1
-CHECKPOINT_KIND = "dslate"                   # files from before the tag have none
-DIGESTED = ("model", "optimizer", "rng")     # the tensors the stored content digest covers
 CSV_FIELDS = ["step", *LOSSES, "tau", "lr", "grad_norm", "seconds"]
 
 
 # ---------------------------------------------------------------------- devices and precision
-def resolve_device(device=None) -> torch.device:
-    """The given device, else CUDA when available, else CPU."""
-    if device is None:
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise ValueError(f"unknown device {device!r}; expected 'cpu' or 'cuda' (or 'cuda:N')") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {str(device)!r} asked for, but this torch build sees no CUDA GPU; use 'cpu'")
-    if device.type not in ("cpu", "cuda"):
-        raise ValueError(f"device {str(device)!r} is not supported; expected 'cpu' or 'cuda'")
-    return device
-
-
 def cpu_has_fast_bf16() -> bool:
     """True on CPUs with AMX or AVX512-BF16 (oneDNN runs bf16 matmuls natively there)."""
     try:
@@ -177,26 +163,6 @@ def build_optimizer(model: DSlate, cfg: DSlateConfig) -> torch.optim.Adam:
 
 
 # ---------------------------------------------------------------------- checkpoints
-def read_checkpoint(path: str | Path, map_location="cpu") -> dict:
-    """Load and check a dSLATE checkpoint (weights_only=True). ValueError naming `path` when
-    it is not one (naming what it is), was written by an incompatible version of the code,
-    does not match its content digest, or holds non-finite weights."""
-    path = Path(path)
-    ckpt = load_tensor_file(path, "dSLATE checkpoint", "train one with `python -m ncs_lite train`",
-                            map_location=map_location)
-    if ckpt.get("kind", CHECKPOINT_KIND) != CHECKPOINT_KIND or "model" not in ckpt or "config" not in ckpt:
-        raise ValueError(f"{path} is not a dSLATE checkpoint (kind {CHECKPOINT_KIND!r} with 'model' and "
-                         f"'config'); it holds {file_kind(ckpt)}")
-    if ckpt.get("format") != CHECKPOINT_FORMAT or ckpt.get("model_version") != MODEL_VERSION:
-        raise ValueError(f"{path} was written by another version of the code: checkpoint format "
-                         f"{ckpt.get('format')!r} / model {ckpt.get('model_version')!r}, this code "
-                         f"expects format {CHECKPOINT_FORMAT} / model {MODEL_VERSION!r}; retrain it")
-    step = ckpt.get("step", 0)
-    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
-        raise ValueError(f"{path} is corrupted: its step must be an integer >= 0, got {step!r}")
-    return check_weights(ckpt, path, DIGESTED)
-
-
 def _rng_state(device: torch.device) -> dict:
     state = {"torch": torch.get_rng_state()}
     if device.type == "cuda":
@@ -278,8 +244,6 @@ ADDED_BY_EXTENDING = ("renderer.",)
 def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict) -> list[str]:
     """Why a finished checkpoint cannot be extended into this run: everything `--resume`
     checks, except the EXTENDABLE fields and the training code (recorded in `lineage`)."""
-    from .config import from_dict
-
     allowed = tuple(f"{f}:" for f in EXTENDABLE) + ("training code:",)
     differences = _resume_differences(ckpt, cfg, precision, env, data_meta)
     problems = [d for d in differences if not d.startswith(allowed)]
@@ -344,9 +308,6 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     its loss log is copied first, and the new checkpoint's `lineage` records the extended
     file's step, hash, code version and the fields' old values.
     """
-    from .data import EpisodeDataset, load_manifest, manifest_hash
-    from .data.buffer import check_actions
-
     cfg.validate()
     out_path = check_out_file(out_path, "checkpoint")
     device = resolve_device(device)
@@ -355,8 +316,6 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     stop = total if max_steps is None else int(max_steps)
     if stop < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-
-    from .envs import ENVIRONMENTS
 
     if env not in ENVIRONMENTS:
         raise ValueError(f"unknown environment {env!r}; expected one of {', '.join(ENVIRONMENTS)}")
@@ -545,64 +504,58 @@ def _truncate_csv(csv_path: Path, step: int) -> None:
         csv.writer(f).writerows(keep)
 
 
-# ---------------------------------------------------------------------- CLI
-def add_subcommand(subparsers) -> None:
-    """Register `train` on the CLI's subparsers (ncs_lite/__main__.py)."""
-    p = subparsers.add_parser("train", help="train dSLATE on an experience buffer",
-                              description="Train dSLATE (dVAE + slot attention + SLATE decoder + "
-                                          "dynamics) on a buffer made by `collect`.")
-    p.add_argument("--env", default="block-rearrange", help="environment the buffer comes from")
-    p.add_argument("--preset", default="reduced", help="config preset: ci, reduced or paper")
-    p.add_argument("--data", required=True, help="buffer directory (from `collect`)")
-    p.add_argument("--out", required=True, help="checkpoint path (.pt); the loss CSV goes beside it")
-    p.add_argument("--resume", action="store_true", help="continue from --out")
-    p.add_argument("--extend", default=None, metavar="CHECKPOINT",
-                   help="continue a finished run (another file) into --out under a schedule that only adds "
-                        f"steps after its end ({', '.join(EXTENDABLE)}), e.g. the render phase")
-    p.add_argument("--steps", type=int, default=None,
-                   help="stop at this global step (default: the preset's full schedule)")
-    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
-    p.add_argument("--precision", default=None, choices=["auto", "bf16", "fp32"],
-                   help="override the preset's precision")
-    p.add_argument("--compile", action="store_true",
-                   help="torch.compile the forward (faster steps after a compilation pause)")
-    p.add_argument("--seed", type=int, default=None,
-                   help="override the preset's train.seed (initial weights and batch order)")
-    add_run_arguments(p)
-    p.add_argument("--force", action="store_true",
-                   help="delete an existing run at --out (checkpoint and loss log) and start afresh")
-    p.set_defaults(func=_main)
+# ---------------------------------------------------------------------- load or train
+def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, seed: int = 0,
+                  env: str = "block-rearrange", device=None) -> tuple[DSlate, Path]:
+    """The notebooks' "load the checkpoint if present, else train": returns (model, path).
+
+    * `reduced` without `train_from_scratch`: `env`'s shipped checkpoint, when present.
+    * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
+      `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
+      `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
+      reused (unless `train_from_scratch`), an interrupted one is resumed, and one made with
+      another config, env, buffer or training code is retrained; each decision is printed.
+    With preset="reduced", seed=0 this is the command that made the shipped checkpoint.
+    """
+    shipped = SHIPPED_MODELS.get(env)
+    if preset == "reduced" and not train_from_scratch and shipped is not None and shipped.exists():
+        return load_dslate(shipped, device), shipped
+    cfg = get_preset(preset, env)
+    cfg.train.seed = int(seed)
+    path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
+    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
+    resume = force = False
+    if path.exists() and not train_from_scratch:
+        why = _unfit(path, cfg, env, data)
+        if why is None:
+            step = int(read_checkpoint(path)["step"])
+            if step >= cfg.train.total_steps():
+                return load_dslate(path, device), path
+            resume = True
+            print(f"obtain_dslate: resuming {path} at step {step} of {cfg.train.total_steps()}")
+        else:
+            force = True
+            print(f"obtain_dslate: retraining {path} from scratch: {why}")
+    elif path.exists():
+        force = True
+        print(f"obtain_dslate: retraining {path} from scratch (train_from_scratch=True)")
+    train(cfg, data, path, resume=resume, force=force, device=device, env=env)
+    return load_dslate(path, device), path
 
 
-def add_run_arguments(p) -> None:
-    """`--set` and `--allow-dirty`, shared by every command that takes a config."""
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
-                   help="override one config field, e.g. --set train.lr=1e-3 (repeatable)")
-    p.add_argument("--allow-dirty", action="store_true",
-                   help="write into figures/ or ncs_lite/assets/ from a tree with uncommitted changes "
-                        "(recorded as dirty)")
-
-
-def config_from_args(args) -> DSlateConfig:
-    """The preset of `args.preset` with `--seed` and `--set` applied."""
-    from .config import apply_overrides
-
-    cfg = get_preset(args.preset, getattr(args, "env", "block-rearrange"))
-    if getattr(args, "seed", None) is not None:
-        if args.seed < 0:
-            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
-        cfg.train.seed = args.seed
-    return apply_overrides(cfg, args.overrides)
-
-
-def _main(args) -> None:
-    cfg = config_from_args(args)
-    t0 = time.perf_counter()
-    path = train(cfg, args.data, args.out, resume=args.resume, device=args.device,
-                 max_steps=args.steps, env=args.env, precision=args.precision, compile=args.compile,
-                 force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty,
-                 extend=args.extend)
-    ckpt = read_checkpoint(path)
-    print(f"wrote {path} (step {ckpt['step']}, {ckpt['precision']}, loss {ckpt['last'].get('loss')}, "
-          f"{ckpt['seconds'] / 60:.1f} min of training, {(time.perf_counter() - t0) / 60:.1f} min "
-          f"this run); losses in {Path(path).with_suffix('.csv')}")
+def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:
+    """Why the cached checkpoint at `path` cannot be reused or resumed, or None."""
+    try:
+        ckpt = read_checkpoint(path)
+    except ValueError as e:
+        return f"it cannot be read ({e})"
+    diff = saved_config_diff(ckpt["config"], cfg)
+    if diff:
+        return f"it was trained with another config ({'; '.join(diff[:3])})"
+    if ckpt.get("env") != env:
+        return f"it was trained on {ckpt.get('env')!r}, not {env!r}"
+    if (ckpt.get("data") or {}).get("manifest_sha256") != manifest_hash(data):
+        return "it was trained on another buffer (manifest hash differs)"
+    if (ckpt.get("code_version") or {}).get("training_code") != training_code_version():
+        return "the training code changed since it was trained"
+    return None

@@ -1,13 +1,16 @@
 """Small shared helpers: seeding, progress bars, atomic writes, paths, versions.
 
-Every long job in the kit writes through `atomic_write`/`atomic_torch_save` so an
-interrupted run never leaves a half-written file behind, and every long loop goes
-through `progress` so CI can silence all bars with one setting (NCS_LITE_PROGRESS=0).
+Every long job in the kit writes through `atomic_path` (`atomic_write_text`, `atomic_write_json`,
+`tensor_files.atomic_torch_save`) so an interrupted run never leaves a half-written file
+behind, and every long loop goes through `progress` so CI can silence all bars with one
+setting (NCS_LITE_PROGRESS=0). Nothing here needs torch: every command imports this module.
 """
 from __future__ import annotations
 
+import ast
 import contextlib
 import glob
+import hashlib
 import json
 import os
 import random
@@ -15,9 +18,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
+from tqdm.std import tqdm as text_tqdm
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 REPO_DIR = PACKAGE_DIR.parent
@@ -32,9 +38,8 @@ def seed_everything(seed: int) -> np.random.Generator:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     random.seed(int(seed))
     np.random.seed(int(seed) % 2**32)
-    if "torch" in sys.modules:
-        import torch
-
+    torch = sys.modules.get("torch")         # seeded when imported; importing it here would cost seconds
+    if torch is not None:
         torch.manual_seed(int(seed))
     return np.random.default_rng(int(seed))
 
@@ -61,15 +66,11 @@ def progress(iterable=None, **kwargs):
     leaves that one-line record."""
     kwargs.setdefault("disable", not progress_enabled())
     if in_jupyter_kernel():
-        from tqdm.std import tqdm
-
         kwargs.update(leave=True)
         kwargs.setdefault("file", sys.stdout)
         kwargs.setdefault("ncols", 100)
         kwargs.setdefault("mininterval", 1.0)
-        return tqdm(iterable, **kwargs)
-    from tqdm.auto import tqdm
-
+        return text_tqdm(iterable, **kwargs)
     kwargs.setdefault("dynamic_ncols", True)
     return tqdm(iterable, **kwargs)
 
@@ -127,79 +128,10 @@ def atomic_path(path: str | os.PathLike):
             os.unlink(tmp)
 
 
-def load_tensor_file(path: str | os.PathLike, what: str, hint: str = "", map_location="cpu") -> dict:
-    """`torch.load(path, weights_only=True)` of a file that must hold a dict; FileNotFoundError
-    or ValueError naming the file and `what` it should be (truncated, not a torch file, a
-    pickle that is not plain tensors, a directory) instead of the unpickler's own error."""
-    import torch
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no {what} at {path}{'; ' + hint if hint else ''}")
-    if path.is_dir():
-        raise ValueError(f"{path} is a directory, expected a {what} file")
-    if not path.is_file():                  # a FIFO or a device: reading it could block for ever
-        raise ValueError(f"{path} is not a regular file, expected a {what} file")
-    if path.stat().st_size == 0:
-        raise ValueError(f"{path} is an empty file, expected a {what} file")
-    try:
-        obj = torch.load(path, weights_only=True, map_location=map_location)
-    except Exception as e:  # noqa: BLE001 - truncated zips, foreign pickles, ... come in many types
-        raise ValueError(f"{path} is not a readable {what} ({one_line(e)})") from None
-    if not isinstance(obj, dict):
-        raise ValueError(f"{path} is not a {what} (it holds a {type(obj).__name__}, expected a dict)")
-    return obj
-
-
 def one_line(e: BaseException) -> str:
     """`Type: first line of the message` of an exception, for a one-line error about a file."""
     first = (str(e).splitlines() or [""])[0][:200]
     return f"{type(e).__name__}: {first}" if first else type(e).__name__
-
-
-# The kind tag of each file type the kit writes, and what it is called in an error about a
-# file passed in the wrong place (`TransitionGraph.load` given a checkpoint, ...).
-FILE_KINDS = {"dslate": "a dSLATE checkpoint", "bc": "a BC checkpoint", "iql": "an IQL checkpoint",
-              "ncs-graph": "an NCS transition graph", "nf-graph": "an NF graph"}
-
-
-def file_kind(sd: dict) -> str:
-    """What a loaded file is, from its kind tag or, for files written before the tags, its keys."""
-    if "kind" in sd:
-        return FILE_KINDS.get(sd["kind"], f"a file of kind {sd['kind']!r}")
-    if "model_version" in sd:
-        return "a dSLATE checkpoint"
-    if "centroids" in sd:
-        return "an NF graph" if "sets" in sd else "an NCS transition graph"
-    return f"a dict with keys {sorted(map(str, sd))[:6]}"
-
-
-def tensor_digest(sd: dict, keys: tuple[str, ...]) -> str:
-    """Digest of a checkpoint's tensors under `keys` (model, optimizer, ...): stored when it
-    is saved, compared when it is loaded (`check_weights`)."""
-    from .cache import digest
-
-    return digest(*[sd.get(k) for k in keys])
-
-
-def check_weights(sd: dict, path, keys: tuple[str, ...]) -> dict:
-    """ValueError naming `path` when a checkpoint's tensors do not match the content digest
-    stored with them (files from before the digest have none) or its weights (`sd["model"]`)
-    are not all finite: a flipped byte or a NaN would otherwise load without complaint."""
-    import torch
-
-    model = sd.get("model")
-    if not (isinstance(model, dict) and all(isinstance(t, torch.Tensor) for t in model.values())):
-        raise ValueError(f"{path} is corrupted: its 'model' must be a dict of tensors, got "
-                         f"{type(model).__name__}")
-    if "content_digest" in sd and tensor_digest(sd, keys) != sd["content_digest"]:
-        raise ValueError(f"{path} is corrupted: its weights do not match the digest stored when it was saved")
-    bad = [k for k, t in sd["model"].items()
-           if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all())]
-    if bad:
-        raise ValueError(f"{path} holds non-finite weights ({len(bad)} of {len(sd['model'])} tensors, "
-                         f"e.g. {bad[0]}); expected finite ones: retrain it")
-    return sd
 
 
 def recorded_env(info: dict) -> str | None:
@@ -259,17 +191,8 @@ def atomic_write_json(path: str | os.PathLike, obj) -> None:
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
 
 
-def atomic_torch_save(obj, path: str | os.PathLike) -> None:
-    import torch
-
-    with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
-
-
 def package_versions() -> dict[str, str]:
     """Versions of the packages whose behaviour shapes data and results."""
-    from importlib import metadata
-
     out = {"python": sys.version.split()[0]}
     for name in ("ncs-lite", "numpy", "torch", "pybullet", "mujoco", "gymnasium", "scipy"):
         try:
@@ -398,8 +321,6 @@ def relative_to_repo(path: str | os.PathLike) -> str:
 
 
 def sha256_file(path: str | os.PathLike) -> str:
-    import hashlib
-
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -411,8 +332,6 @@ def source_hash(*parts: str) -> str:
     """sha256 over the code of the kit's Python sources under `parts` (files or folders of
     ncs_lite/): the code version that caches and `--resume` are keyed by. It reads each file's
     syntax tree without docstrings (`code_of`), so prose, comments and layout change no key."""
-    import hashlib
-
     h = hashlib.sha256()
     for part in sorted(parts):
         root = PACKAGE_DIR / part
@@ -426,8 +345,6 @@ def source_hash(*parts: str) -> str:
 def code_of(source: str) -> str:
     """What Python runs of `source`: its syntax tree, dumped without positions, comments or
     docstrings (a module's, class's or function's first statement when it is a string)."""
-    import ast
-
     tree = ast.parse(source)
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):

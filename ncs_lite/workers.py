@@ -18,8 +18,14 @@ from __future__ import annotations
 
 import contextlib
 import io
+import multiprocessing
 import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Sequence
+
+import torch
+
+from .utils import progress
 
 __all__ = ["default_workers", "map_jobs"]
 
@@ -31,8 +37,6 @@ def default_workers(threads: int | None = None) -> int:
     else the cores this process may use divided by the threads a job keeps busy (`threads`,
     default torch's thread count, which each worker runs on; 1 for jobs that are mostly not
     torch, such as an env's episodes), at least 1."""
-    import torch
-
     value = os.environ.get("NCS_LITE_WORKERS")
     if value is not None:
         if not value.isdigit() or int(value) < 1:
@@ -44,8 +48,6 @@ def default_workers(threads: int | None = None) -> int:
 
 
 def _start_worker(threads: int, shared) -> None:
-    import torch
-
     global _shared
     torch.set_num_threads(threads)
     os.environ["NCS_LITE_PROGRESS"] = "0"          # one bar, the caller's
@@ -73,8 +75,6 @@ def map_jobs(fn: Callable, jobs: Sequence[tuple], shared=None, workers: int | No
     collect of a buffer already on disk) run in this process without a progress bar, which
     would read "0 episodes 1/1".
     """
-    from .utils import progress
-
     workers = default_workers() if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
@@ -83,11 +83,6 @@ def map_jobs(fn: Callable, jobs: Sequence[tuple], shared=None, workers: int | No
         return [fn(shared, *job) for job in jobs]
     if workers <= 1:
         return [fn(shared, *job) for job in progress(jobs, desc=desc)]
-
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    import torch
 
     order = list(range(len(jobs))) if first is None else list(first)
     if sorted(order) != list(range(len(jobs))):

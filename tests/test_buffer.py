@@ -219,6 +219,7 @@ def test_legacy_shards_load_and_a_broken_manifest_is_named(buffers, tmp_path, ca
 
 def test_cached_buffer_is_keyed_by_the_code_that_records_it(tmp_path, monkeypatch):
     import ncs_lite.cache as cache
+    import ncs_lite.data.buffer as buffer
     from ncs_lite.data import cached_buffer, manifest_hash
     from ncs_lite.data.buffer import BUFFER_CODE
 
@@ -226,7 +227,7 @@ def test_cached_buffer_is_keyed_by_the_code_that_records_it(tmp_path, monkeypatc
     old = cached_buffer(2)
     assert old.parent == tmp_path / "buffers" and old.name == f"block-rearrange-k4-e2-s0-v1-{cache.code_digest(*BUFFER_CODE)}"
     assert cached_buffer(2) == old
-    monkeypatch.setattr(cache, "code_digest", lambda *parts: "0123456789abcdef")     # as after an edit of envs/
+    monkeypatch.setattr(buffer, "code_digest", lambda *parts: "0123456789abcdef")    # as after an edit of envs/
     new = cached_buffer(2)
     assert new != old and new.name.endswith("-0123456789abcdef") and (new / "shard-00000.npz").exists()
     assert manifest_hash(new) == manifest_hash(old)     # what checkpoints name a buffer by: they still fit

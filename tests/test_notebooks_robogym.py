@@ -32,7 +32,8 @@ def test_colour_names_use_each_envs_palette():
 def test_obtain_dslate_loads_the_envs_shipped_checkpoint(env):
     """At `reduced` each env gets its own shipped checkpoint (robogym-rearrange once got
     block-rearrange's)."""
-    from ncs_lite.inference import obtain_dslate, shipped_asset
+    from ncs_lite.inference import shipped_asset
+    from ncs_lite.training import obtain_dslate
 
     try:
         path = shipped_asset(env, "ncs", "model")

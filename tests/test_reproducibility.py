@@ -9,8 +9,9 @@ from ncs_lite import utils
 from ncs_lite.__main__ import main
 from ncs_lite.config import NCSConfig, apply_overrides, get_preset, ncs_config
 from ncs_lite.data import collect
+from ncs_lite.inference import read_checkpoint
 from ncs_lite.reproduce import mean_sd
-from ncs_lite.training import read_checkpoint, run_lock, train
+from ncs_lite.training import run_lock, train
 
 
 
@@ -307,12 +308,12 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     """dSLATE and BC/IQL checkpoints carry a kind tag and a digest of their tensors: a flipped
     byte, non-finite weights or another kind of file is refused in one line naming the path
     and what the file is; files written before the tag and digest (the shipped ones) load."""
-    from ncs_lite import utils as u
+    from ncs_lite import tensor_files as u
     from ncs_lite.baselines import bc as bc_module, goal_conditioned, nf
     from ncs_lite.baselines.runs import load_trained_policy
     from ncs_lite.inference import SHIPPED_CHECKPOINT, SHIPPED_GRAPH, SHIPPED_POLICIES, load_dslate
     from ncs_lite.ncs import graph as graph_module
-    from ncs_lite import training
+    from ncs_lite import inference
 
     dslate = train(get_preset("ci"), buffer, tmp_path / "m.pt", max_steps=1)
     bc = tmp_path / "bc.pt"
@@ -333,7 +334,7 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
         """A copy of checkpoint `src` changed by `change(dict)`, with its digest stored anew (or dropped)."""
         sd = torch.load(src, weights_only=True)
         change(sd)
-        keys = training.DIGESTED if sd.get("kind") == "dslate" else goal_conditioned.DIGESTED
+        keys = inference.DIGESTED if sd.get("kind") == "dslate" else goal_conditioned.DIGESTED
         sd.pop("content_digest")
         torch.save({**sd, "content_digest": u.tensor_digest(sd, keys)} if digest else sd, tmp_path / name)
         return str(tmp_path / name)
@@ -384,7 +385,7 @@ def test_bad_checkpoints_get_one_line_errors(buffer, tmp_path, capsys):
     for method, path in SHIPPED_POLICIES.items():
         assert load_trained_policy(path, method).step > 0
     # every kind tag the kit writes has a name for those messages
-    kinds = {training.CHECKPOINT_KIND, *goal_conditioned.KINDS, graph_module.GRAPH_KIND, nf.GRAPH_KIND}
+    kinds = {inference.CHECKPOINT_KIND, *goal_conditioned.KINDS, graph_module.GRAPH_KIND, nf.GRAPH_KIND}
     assert kinds == set(u.FILE_KINDS)
 
 

@@ -7,7 +7,7 @@ import torch
 from ncs_lite.config import get_preset, to_dict
 from ncs_lite.inference import load_dslate
 from ncs_lite.models.dslate import DSlate
-from ncs_lite.training import BatchOrder, add_subcommand, lr_at, train
+from ncs_lite.training import BatchOrder, lr_at, train
 
 
 @pytest.fixture(scope="module")
@@ -252,11 +252,9 @@ def test_schedules_and_batch_order():
 
 
 def test_cli_subcommand():
-    import argparse
+    from ncs_lite.__main__ import build_parser
 
-    parser = argparse.ArgumentParser()
-    add_subcommand(parser.add_subparsers(dest="cmd"))
-    args = parser.parse_args(["train", "--env", "block-rearrange", "--preset", "reduced", "--data", "D",
+    args = build_parser().parse_args(["train", "--env", "block-rearrange", "--preset", "reduced", "--data", "D",
                               "--out", "C.pt", "--resume", "--steps", "7"])
     assert (args.preset, args.data, args.out, args.resume, args.steps) == ("reduced", "D", "C.pt", True, 7)
     assert callable(args.func)
@@ -272,7 +270,7 @@ def test_evaluate_segmentation_on_a_buffer(buffer, tmp_path):
 
 
 def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
-    from ncs_lite.inference import obtain_dslate
+    from ncs_lite.training import obtain_dslate
 
     monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
     model, path = obtain_dslate("ci", seed=1)
@@ -282,10 +280,10 @@ def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
     assert path2 == path and path.stat().st_mtime_ns == stamp
     for k, v in model.state_dict().items():
         assert torch.equal(v, again.state_dict()[k]), k
-    import ncs_lite.cache as cache
+    import ncs_lite.data.buffer as buffer
 
     with monkeypatch.context() as m:     # after an edit of envs/ the buffer is collected into another
-        m.setattr(cache, "code_digest", lambda *parts: "0123456789abcdef")    # folder: the checkpoint,
+        m.setattr(buffer, "code_digest", lambda *parts: "0123456789abcdef")   # folder: the checkpoint,
         obtain_dslate("ci", seed=1)                           # which names it by its manifest, still fits
     assert path.stat().st_mtime_ns == stamp and len(list((tmp_path / "buffers").iterdir())) == 2
     ckpt = torch.load(path, weights_only=True)                # a cache left by an older preset
@@ -334,6 +332,20 @@ def test_gamma_keeps_black_white_and_order_but_changes_how_close_two_colours_are
     assert torch.equal(out, augment_colors("channels_gamma", videos, np.random.default_rng(0)))
     with pytest.raises(ValueError, match=r"colour augmentation must be one of 'channels', 'channels_gamma', got 'hue'"):
         augment_colors("hue", videos, np.random.default_rng(0))
+
+
+def test_the_colour_augmentations_are_the_configs_choices():
+    from ncs_lite.config import COLOR_AUGMENTS, get_preset
+    from ncs_lite.data.augment import AUGMENTS
+
+    assert COLOR_AUGMENTS == ("none", *AUGMENTS)            # config.py names them, augment.py draws them
+    cfg = get_preset("ci")
+    cfg.train.color_augment = 3
+    with pytest.raises(ValueError, match=r"^train\.color_augment must be a string, got 3$"):
+        cfg.validate()
+    cfg.train.color_augment = "hue"
+    with pytest.raises(ValueError, match=r"train\.color_augment must be one of 'none', 'channels', 'channels_gamma'"):
+        cfg.validate()
 
 
 def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_frames():

@@ -17,6 +17,8 @@ Shapes: B batch, E episodes, T frames per episode (5), H = W = 64 pixels.
 """
 from __future__ import annotations
 
+import csv
+import io
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 
@@ -24,7 +26,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..utils import atomic_torch_save, check_weights, file_kind, load_tensor_file, one_line, tensor_digest
+from ..data import load_buffer
+from ..tensor_files import atomic_torch_save, check_weights, file_kind, load_tensor_file, tensor_digest
+from ..utils import atomic_write_text, one_line, progress, seed_everything
 
 CHECKPOINT_FORMAT = 1
 KINDS = ("bc", "iql")                  # the kind tags of baseline checkpoints
@@ -195,8 +199,6 @@ class HindsightGoals:
 def as_buffer(buffer) -> dict:
     """A loaded buffer dict, or a buffer directory to load."""
     if isinstance(buffer, (str, Path)):
-        from ..data import load_buffer
-
         return load_buffer(buffer)
     if not isinstance(buffer, dict):
         raise ValueError(f"buffer must be a buffer directory or the dict of `load_buffer`, got {type(buffer).__name__}")
@@ -253,8 +255,6 @@ def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=No
     come back and the batches are those of the uninterrupted run (`HindsightGoals`), so the
     result is the same. Each checkpoint writes the log so far beside it as a CSV
     (`out` with suffix .csv). Returns the log, one dict per step."""
-    from ..utils import progress
-
     log, start = [], 0
     if checkpoint_every is not None:
         check_int("checkpoint_every", checkpoint_every, 1)
@@ -284,11 +284,6 @@ def run_training(kind: str, model: nn.Module, optimizer, step_fn, cfg, *, out=No
 
 def _save_run(out, kind, model, cfg, step, log, optimizer, info) -> None:
     """A checkpoint and, beside it, its loss log as a CSV (both atomic)."""
-    import csv
-    import io
-
-    from ..utils import atomic_write_text
-
     save_checkpoint(out, kind, model, cfg, step=step, log=log, optimizer=optimizer, info=info)
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=list(log[0]) if log else ["step"])
@@ -340,8 +335,6 @@ class PolicyAgent:
 def training_setup(buffer, action_space, cfg, build):
     """What BC and IQL training share: the checked buffer, `build(cfg, box)`'s model (after
     seeding) and the hindsight goal sampler. Returns (model, box, goals)."""
-    from ..utils import seed_everything
-
     buffer = as_buffer(buffer)
     box = ActionBox.from_space(action_space)
     check_buffer(buffer, box)

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..ncs.policy import ALIGN_RULES, align
+from ..config import ALIGN_RULES
+from ..ncs.policy import align
 from .cem import CEMConfig, cem_minimize
 from .goal_conditioned import preset_config
 

@@ -38,7 +38,8 @@ from scipy.sparse.csgraph import dijkstra
 from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, check_features, check_graph_file, content_digest,
                          edge_tensors)
 from ..ncs.kmeans import assign, kmeans
-from ..utils import atomic_torch_save, file_kind, load_tensor_file
+from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
+from .goal_conditioned import as_buffer
 
 GRAPH_KIND = "nf-graph"
 GRAPH_FORMAT = 1
@@ -244,8 +245,6 @@ def set_graph_from_buffer(buffer, perception, graph=None, **kwargs) -> SetGraph:
     """NF graph of a buffer (`load_buffer` dict or directory) as `perception` sees it
     (`OraclePerception` or `DSlatePerception`); kwargs as `set_graph_from_transitions`, whose
     `state` defaults to the perception's kind of state (`graph_state`)."""
-    from .goal_conditioned import as_buffer
-
     kwargs.setdefault("state", getattr(perception, "graph_state", "mask"))
     return set_graph_from_transitions(perception.transitions(as_buffer(buffer)), graph, **kwargs)
 

@@ -1,20 +1,26 @@
-"""Training the learned baselines and building NF's graph: the commands and the notebooks' cache.
+"""Training the learned baselines (BC, IQL): what `train-baseline` runs, and the notebooks' cache.
 
     python -m ncs_lite train-baseline --method bc --data DIR --out bc.pt [--preset reduced]
         [--set bc.steps=2000] [--resume | --force]
-    python -m ncs_lite graph-nf (--checkpoint CKPT | --oracle) --data DIR --out nf.pt
-        [--bind-graph GRAPH] [--state mask|slot]
     model, path = obtain_policy("bc", "reduced")      # notebooks: train once, then reuse
 
 A run records its env, buffer (manifest hash), config, `--set` overrides, code version and
 commit. `--resume` continues a run only with the same config, env and buffer; an existing
-run at `--out` is never replaced unless `--force`.
+run at `--out` is never replaced unless `--force`. The commands' options: ncs_lite/__main__.py
+(which also builds NF's graph, `graph-nf`, with `nf.set_graph_from_transitions`).
 """
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
+from ..cache import code_digest
+from ..config import section_config
+from ..data import cached_buffer, load_buffer, load_manifest, manifest_hash
+from ..envs import make
+from ..inference import TRAIN_EPISODES
+from ..utils import cache_dir, check_out_file, provenance, relative_to_repo
 from .bc import bc_config, load_bc, train_bc
 from .goal_conditioned import read_checkpoint
 from .iql import iql_config, load_iql, train_iql
@@ -33,8 +39,6 @@ def _method(method: str) -> str:
 
 def policy_config(method: str, preset: str = "reduced", overrides=(), seed: int | None = None):
     """The `preset` config of BC or IQL with `--seed` and `--set METHOD.FIELD=VALUE` applied."""
-    from ..config import section_config
-
     cfg = POLICIES[_method(method)][0](preset)
     if seed is not None:
         cfg.seed = int(seed)
@@ -54,11 +58,6 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
                  force: bool = False, overrides=(), allow_dirty: bool = False):
     """Train BC or IQL (`cfg`) on the buffer directory `data` into the checkpoint `out`.
     Returns (model, log)."""
-    from ..cache import code_digest
-    from ..data import load_buffer, load_manifest, manifest_hash
-    from ..envs import make
-    from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
-
     _method(method)
     out = check_out_file(out, f"{method} checkpoint")
     if resume and force:
@@ -91,11 +90,6 @@ def train_policy(method: str, cfg, data, out, env: str = "block-rearrange", *, r
 
 def _unfit(path: Path, method: str, cfg, env: str, data: Path) -> str | None:
     """Why the cached policy at `path` cannot be reused or resumed, or None."""
-    from dataclasses import asdict
-
-    from ..cache import code_digest
-    from ..data import load_manifest, manifest_hash
-
     try:
         ckpt = read_checkpoint(path, method)
     except ValueError as e:
@@ -115,10 +109,6 @@ def obtain_policy(method: str, preset: str = "reduced", seed: int = 0, env: str 
     trained on the 4-object buffer dSLATE trains on (`inference.TRAIN_EPISODES[preset]`).
     A finished, fitting run is reused, an interrupted one resumed, an unfit one (another
     config, buffer or code) retrained; each decision is printed. Returns (model, path)."""
-    from ..data import cached_buffer
-    from ..inference import TRAIN_EPISODES
-    from ..utils import cache_dir
-
     cfg = policy_config(method, preset, seed=seed)
     path = cache_dir() / "checkpoints" / f"{method}-{env}-{preset}-s{seed}.pt"
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=0)
@@ -135,89 +125,6 @@ def obtain_policy(method: str, preset: str = "reduced", seed: int = 0, env: str 
             print(f"obtain_policy: retraining {path} from scratch: {why}")
     train_policy(method, cfg, data, path, env, resume=resume, force=force)
     return load_trained_policy(path, method), path          # with its log, info and step
-
-
-# ---------------------------------------------------------------------- CLI
-def _train_baseline(args) -> None:
-    cfg = policy_config(args.method, args.preset, args.overrides, args.seed)
-    model, log = train_policy(args.method, cfg, args.data, args.out, args.env, resume=args.resume,
-                              force=args.force, overrides=args.overrides, allow_dirty=args.allow_dirty)
-    print(json.dumps({"out": args.out, "method": args.method, "steps": len(log),
-                      "last": {k: round(v, 5) for k, v in log[-1].items() if k != "step"} if log else None}))
-
-
-def _graph_nf(args) -> None:
-    from ..config import ncs_config, to_dict
-    from ..data import load_manifest, manifest_hash
-    from ..inference import load_dslate
-    from ..ncs.graph import TransitionGraph
-    from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
-    from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
-    from .nf import set_graph_from_transitions
-
-    if (args.checkpoint is None) == (not args.oracle):
-        raise ValueError("give exactly one of --checkpoint CKPT (learned NF) or --oracle")
-    check_out_file(args.out, "NF graph")
-    env = load_manifest(args.data)["env"]["env"]
-    bind = TransitionGraph.load(args.bind_graph) if args.bind_graph else None
-    if bind is not None:
-        check_file_env("--bind-graph", args.bind_graph, recorded_env(bind.info), env)
-    model = None if args.oracle else load_dslate(args.checkpoint)
-    if model is not None:
-        check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
-    if bind is not None and args.clusters is not None and args.clusters != bind.num_nodes:
-        raise ValueError(f"--clusters {args.clusters}: the entities bind to --bind-graph's {bind.num_nodes} "
-                         "nodes; drop --clusters (it sets NF's own k-means, without --bind-graph)")
-    cfg = ncs_config(args.overrides, clusters=bind.num_nodes if bind else args.clusters,
-                     state=args.state or (bind.state if bind else None))
-    made = provenance(args.out, args.allow_dirty)
-    perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(model, iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
-    transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
-    try:
-        graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)
-    except ValueError as exc:
-        if bind is None:
-            raise
-        raise ValueError(f"--bind-graph {args.bind_graph}: {exc}") from None
-    graph.info.update(env=env, data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
-                      checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
-                      bind_graph=relative_to_repo(args.bind_graph) if args.bind_graph else None,
-                      oracle=args.oracle, ncs=to_dict(cfg), overrides=list(args.overrides),
-                      **slot_read(perception), **made)
-    graph.save(args.out)
-    print(json.dumps({"out": args.out, "state": graph.state, "scene_nodes": graph.num_nodes,
-                      "edges": graph.num_edges, "entity_nodes": int(graph.centroids.shape[0])}))
-
-
-def add_subcommand(subparsers) -> None:
-    """Register `train-baseline` and `graph-nf` on the CLI (ncs_lite/__main__.py)."""
-    from ..training import add_run_arguments
-
-    p = subparsers.add_parser("train-baseline", help="train the BC or IQL baseline on a buffer")
-    p.add_argument("--method", required=True, help="bc | iql")
-    p.add_argument("--env", default="block-rearrange", help="environment the buffer comes from")
-    p.add_argument("--preset", default="reduced", help="ci | reduced | paper")
-    p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
-    p.add_argument("--out", required=True, help="checkpoint path (.pt)")
-    p.add_argument("--seed", type=int, default=None, help="= --set METHOD.seed")
-    p.add_argument("--resume", action="store_true", help="continue the run at --out")
-    p.add_argument("--force", action="store_true", help="replace an existing run at --out")
-    add_run_arguments(p)
-    p.set_defaults(func=_train_baseline)
-
-    p = subparsers.add_parser("graph-nf", help="build the NF baseline's graph over whole entity sets")
-    p.add_argument("--checkpoint", help="dSLATE checkpoint (learned entities)")
-    p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
-    p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
-    p.add_argument("--bind-graph", help="NCS graph whose entity nodes bind NF's entities (default: NF's "
-                                        "own k-means with --clusters)")
-    p.add_argument("--clusters", type=int, default=None, help="entity nodes without --bind-graph (= --set ncs.clusters)")
-    p.add_argument("--state", default=None, help="mask | slot (default: the --bind-graph's, else mask)")
-    p.add_argument("--out", required=True)
-    add_run_arguments(p)
-    p.set_defaults(func=_graph_nf)
 
 
 __all__ = ["POLICIES", "load_trained_policy", "obtain_policy", "policy_config", "train_policy"]

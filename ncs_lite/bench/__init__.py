@@ -27,6 +27,7 @@ def run(name: str, out=None) -> dict:
         raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHMARKS)}")
     load_before = os.getloadavg()[0]
     start = time.time()
+    # local: only the benchmark asked for is imported (each loads what it measures: MuJoCo, pybullet, ...)
     result = importlib.import_module(BENCHMARKS[name]).run()
     # what a ratio needs beside it: the CPU (AMX or not), its cores and how busy they were
     result["meta"] = {"benchmark": name, "seconds": round(time.time() - start, 2),

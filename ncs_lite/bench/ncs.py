@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
+from ..config import NCSConfig
+from ..data import cached_buffer, load_buffer
+from ..evaluation import TaskSet, agent_factory
+from ..inference import SHIPPED_CHECKPOINT, load_dslate
+from ..ncs.graph import graph_from_buffer
+from ..ncs.perception import DSlatePerception, OraclePerception
 
 
 # slot-attention restarts whose inference time the bench also measures (ncs.perception)
@@ -27,13 +32,6 @@ def _per_call(fn, n: int) -> float:
 
 
 def run(steps: int = 50) -> dict:
-    from ..inference import SHIPPED_CHECKPOINT, load_dslate
-    from ..data import cached_buffer, load_buffer
-    from ..config import NCSConfig
-    from ..evaluation import TaskSet, agent_factory
-    from ..ncs.graph import graph_from_buffer
-    from ..ncs.perception import DSlatePerception, OraclePerception
-
     buffer = load_buffer(cached_buffer(1000))
     oracle_graph = graph_from_buffer(buffer, OraclePerception(), clusters=30)
     ckpt = SHIPPED_CHECKPOINT

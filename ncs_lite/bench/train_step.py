@@ -26,7 +26,8 @@ from torch.utils.flop_counter import FlopCounterMode
 from . import cpu_name
 from ..config import get_preset
 from ..models.dslate import DSlate
-from ..training import autocast, build_optimizer, resolve_device
+from ..inference import resolve_device
+from ..training import autocast, build_optimizer
 from ..utils import package_versions, progress
 
 __all__ = ["run", "matmul_peak", "step_flops"]

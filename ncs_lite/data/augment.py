@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..config import COLOR_AUGMENTS
+
 __all__ = ["COLOR_AUGMENTS", "augment_colors", "permute_channels", "permute_channels_and_gamma"]
 
 GAMMA_RANGE = 2.5          # g in [1 / GAMMA_RANGE, GAMMA_RANGE], log-uniform
@@ -49,8 +51,7 @@ def permute_channels_and_gamma(videos: torch.Tensor, rng: np.random.Generator) -
     return (out * 255.0).round().to(videos.dtype)
 
 
-AUGMENTS = {"channels": permute_channels, "channels_gamma": permute_channels_and_gamma}
-COLOR_AUGMENTS = ("none", *AUGMENTS)
+AUGMENTS = {"channels": permute_channels, "channels_gamma": permute_channels_and_gamma}   # = COLOR_AUGMENTS[1:]
 
 
 def augment_colors(kind: str, videos: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:

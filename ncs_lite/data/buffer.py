@@ -17,6 +17,7 @@ refuses a bad one naming it, and `collect` collects it again.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 import zlib
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..cache import code_digest
 from ..envs import make
 from ..envs.common import outside_action_space
 from ..utils import atomic_path, atomic_write_json, cache_dir, check_out_dir, one_line, package_versions
@@ -163,8 +165,6 @@ def _manifest_problem(m) -> str | None:
 
 def manifest_hash(directory: str | Path) -> str:
     """sha256 of a buffer's manifest (canonical JSON): names the buffer a model was trained on."""
-    import hashlib
-
     text = json.dumps(load_manifest(directory), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -321,8 +321,6 @@ def cached_buffer(episodes: int, env: str = "block-rearrange", num_objects: int 
 
     Checkpoints and graphs name their buffer by its manifest hash, which holds the config but
     not this folder's name: one trained before a code change still fits the buffer collected
-    after it (`inference.obtain_dslate`, `train --resume`), so nothing retrains."""
-    from ..cache import code_digest
-
+    after it (`training.obtain_dslate`, `train --resume`), so nothing retrains."""
     path = cache_dir() / "buffers" / f"{env}-k{num_objects}-e{episodes}-s{seed}-v{FORMAT}-{code_digest(*BUFFER_CODE)}"
     return collect(path, episodes=episodes, env=env, num_objects=num_objects, seed=seed)

@@ -6,6 +6,8 @@
 """
 from __future__ import annotations
 
+import importlib
+
 import gymnasium as gym
 import numpy as np
 
@@ -30,8 +32,7 @@ def make(name: str, **kwargs) -> gym.Env:
         raise ValueError(f"unknown environment {name!r}; expected one of {sorted(ENVIRONMENTS)}")
     _, entry = ENVIRONMENTS[name]
     module, cls = entry.split(":")
-    import importlib
-
+    # local: each env's module is imported on first use (robogym-rearrange's loads MuJoCo)
     return getattr(importlib.import_module(module), cls)(**kwargs)
 
 

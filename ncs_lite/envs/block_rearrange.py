@@ -14,6 +14,8 @@ A constraint holds when its cube is within `success_threshold` of its goal posit
 """
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -27,20 +29,17 @@ def _import_pybullet_quietly():
     file descriptor 2 on import (in a notebook it is the first output, in a red stderr box).
     fd 2 points at /dev/null for the import only and is restored afterwards; a failed import
     still raises its ImportError."""
-    import os
-    import sys
-
     if "pybullet" in sys.modules:
         return sys.modules["pybullet"]
     sys.stderr.flush()
     try:
         saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
     except OSError:                      # no usable fd 2: import as is
-        import pybullet
+        import pybullet  # local: this function is the import, with fd 2 silenced
         return pybullet
     try:
         os.dup2(devnull, 2)
-        import pybullet
+        import pybullet  # local: this function is the import, with fd 2 silenced
     finally:
         os.dup2(saved, 2)
         os.close(saved)

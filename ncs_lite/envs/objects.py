@@ -28,6 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pybullet_data
 
 SOURCE_PRIMITIVE = "MuJoCo primitive (no file)"
 SOURCE_PYBULLET = "pybullet_data, from the pybullet wheel on PyPI (bullet3, zlib licence)"
@@ -91,8 +92,6 @@ def source(entry) -> str:
 
 
 def pybullet_data_dir() -> Path:
-    import pybullet_data
-
     return Path(pybullet_data.getDataPath())
 
 
@@ -124,7 +123,7 @@ def load_mesh(path: str, prescale: tuple, quarter_turns: int) -> tuple[np.ndarra
 
 def chunkiness(v: np.ndarray) -> float:
     """Area of the outline seen from above (convex hull of x, y) / (longest dimension)^2."""
-    from scipy.spatial import ConvexHull
+    from scipy.spatial import ConvexHull  # local: half a second to import, for this check of the object set alone
 
     return float(ConvexHull(v[:, :2]).volume / (v.max(0) - v.min(0)).max() ** 2)
 

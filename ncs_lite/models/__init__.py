@@ -1,5 +1,6 @@
 """dSLATE's parts, a file per concept: dVAE, slot attention (over tokens or a pixel CNN),
-SLATE decoder, dynamics, and the auxiliary mixture decoder."""
+SLATE decoder and dynamics (both built of transformer.py's one `Block`), and the auxiliary
+mixture decoder."""
 import torch
 
 from .decoder import TransformerDecoder

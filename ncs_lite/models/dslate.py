@@ -47,7 +47,8 @@ from torch import nn
 from .decoder import TransformerDecoder
 from .dvae import DVAE, patchify, unpatchify
 from .dynamics import Dynamics
-from .mixture_decoder import ERRORS as MIXTURE_ERRORS, MixtureDecoder
+from ..config import MIXTURE_ERRORS
+from .mixture_decoder import MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
 from .slot_attention import SlotAttention

@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .decoder import Block
+from .transformer import Block
 
 __all__ = ["Dynamics"]
 

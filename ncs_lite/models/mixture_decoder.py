@@ -36,23 +36,20 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..config import MIXTURE_ALPHAS, MIXTURE_APPEARANCES
 from .positional import sinusoid_2d
 
 __all__ = ["MixtureDecoder"]
-
-ALPHAS = ("decoder", "attention")
-APPEARANCES = ("slot", "type")
-ERRORS = ("mixed", "per_slot")     # how DSlate.mixture_error scores the paint (MixtureConfig.error)
 
 
 class MixtureDecoder(nn.Module):
     def __init__(self, slot_dim: int, grid: int, patch: int, hidden: int, alpha: str = "decoder",
                  appearance: str = "slot", type_dim: int | None = None):
         super().__init__()
-        if alpha not in ALPHAS:
-            raise ValueError(f"alpha must be one of {ALPHAS}, got {alpha!r}")
-        if appearance not in APPEARANCES:
-            raise ValueError(f"appearance must be one of {APPEARANCES}, got {appearance!r}")
+        if alpha not in MIXTURE_ALPHAS:
+            raise ValueError(f"alpha must be one of {MIXTURE_ALPHAS}, got {alpha!r}")
+        if appearance not in MIXTURE_APPEARANCES:
+            raise ValueError(f"appearance must be one of {MIXTURE_APPEARANCES}, got {appearance!r}")
         if appearance == "type" and (alpha != "attention" or not type_dim):
             raise ValueError("appearance 'type' paints without a position: it needs alpha "
                              f"'attention' and a type_dim, got {alpha!r} and {type_dim!r}")

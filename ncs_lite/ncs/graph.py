@@ -50,8 +50,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..utils import atomic_torch_save, file_kind, load_tensor_file
+from ..cache import digest
+from ..config import EDGE_ACTIONS
+from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from .kmeans import assign, kmeans, pairwise_distances
+from .perception import slot_read
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -62,7 +65,6 @@ BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
 STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Table 3's columns
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout"}
-EDGE_ACTIONS = ("most_common", "nearest", "compose", "readout")
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
@@ -92,8 +94,6 @@ GRAPH_KEYS = ("centroids", "bind_metric", "edge_index", "edge_action", "edge_cou
 
 def content_digest(sd: dict) -> str:
     """Digest of a graph file's tensors and metric (checked on load: a flipped byte shows)."""
-    from ..cache import digest
-
     return digest([sd[k] for k in GRAPH_KEYS[:-1]] + [sd.get("sets")]
                   + ([sd["edge_before"], sd["edge_after"]] if "edge_before" in sd else []))
 
@@ -467,8 +467,6 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
         state = own or "mask"
     elif own is not None and state != own:
         raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
-    from .perception import slot_read
-
     states_t, states_t1, actions, true_entity = perception.transitions(buffer)
     graph = build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
                         true_entity=true_entity, edge_action=edge_action)

@@ -21,6 +21,11 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from ..cache import buffer_digest, cached, code_digest, digest
+from ..config import SLOT_POSITIONS
+from ..data import load_buffer
+from ..workers import map_jobs
+
 STATE_GRID = 16
 # slot-attention restarts per image (DSlate.infer): slot attention is a local search and now
 # and then two slots share a cube; notebook 03 measures fg-ARI and absorbed cubes with one
@@ -43,7 +48,6 @@ RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8}
 # robogym-rearrange keeps "attention": the assigned read is not measured there.
 SLOT_POSITION = "attention"
 SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
-SLOT_POSITIONS = ("attention", "assigned")
 
 
 def acting_restarts(ncs, model) -> int:
@@ -216,8 +220,6 @@ class DSlatePerception:
         (the restarts' initial samples depend on the batch, so the result does too).
         M = E * (T - 1) in episode order: transition t of episode e is row e * (T - 1) + t.
         """
-        from ..workers import map_jobs
-
         frames = buffer["frames"]
         batches = [(frames[i:i + self.batch_size],) for i in range(0, len(frames), self.batch_size)]
         # each batch is seeded alone: worker processes give the loop's result
@@ -236,8 +238,6 @@ class DSlatePerception:
 
     def describe(self) -> dict:
         """What this perception's output depends on (a cache key, `buffer_transitions`)."""
-        from ..cache import digest
-
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
                 "slot_position": self.slot_position if self.state == "slot" else None,   # masks: unread
@@ -301,9 +301,6 @@ def buffer_transitions(perception, directory: str | Path, buffer: dict | None = 
     training (slot inference with restarts on every frame). `buffer`: the loaded buffer, if
     the caller already has it (it must be the one at `directory`).
     """
-    from ..cache import buffer_digest, cached, code_digest
-    from ..data import load_buffer
-
     def compute():
         data = buffer if buffer is not None else load_buffer(directory)
         return tuple(perception.transitions(data))

@@ -52,7 +52,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
-from ..config import NCSConfig
+from ..config import ALIGN_RULES, NCSConfig
 from .graph import EXAMPLE_ACTIONS, TransitionGraph, isolate_distance
 
 
@@ -61,7 +61,6 @@ def type_distances(current_types: torch.Tensor, goal_types: torch.Tensor) -> tor
     return torch.cdist(goal_types.float(), current_types.float())
 
 
-ALIGN_RULES = ("hungarian", "mutual", "either", "near")
 # rule "near": a pair is one entity when its types lie closer than this fraction of the scene's
 # median type distance (that of two different entities: most of the G x C pairs are)
 NEAR_RATIO = 0.25
