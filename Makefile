@@ -36,6 +36,10 @@ $(STAMP): environment.txt pyproject.toml
 # (ALLOW_DIRTY=1 writes anyway and records "dirty": true in each figure's JSON). The changes are
 # those `ncs_lite.utils.dirty_files` sees: generated text aside, and a notebook only when its
 # cells changed (a notebook run and saved in JupyterLab has new outputs, not new code).
+# make's start, before .venv is built, and whether .cache/ was there: `reproduce` records its
+# whole run (figures/notebook_times.json, "run"; the README quotes it)
+MAKE_START := $(shell date +%s.%N)
+CACHE_AT_START := $(shell test -d .cache && echo 1 || echo 0)
 reproduce: $(STAMP)
 	@if [ "$(ALLOW_DIRTY)" != 1 ] && ! $(PY) -c "import sys; from ncs_lite.utils import dirty_files; \
 	  d = dirty_files(); d and print('make reproduce: uncommitted changes in', ', '.join(d)); sys.exit(bool(d))"; then \
@@ -58,6 +62,11 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $${name}_robogym $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
+	# the whole run's time, when it ran every notebook (not NOTEBOOKS=... from the command line)
+	if [ "$(origin NOTEBOOKS)$(origin ENV_NOTEBOOKS)" = "filefile" ]; then \
+	  $(PY) -c "import os, sys; from ncs_lite.reproduce import record_run_time as r; now, start = map(float, sys.argv[1:3]); \
+	    r(now - start, os.path.getmtime(sys.argv[3]) >= start, sys.argv[4] == '0', sys.argv[5])" \
+	    $$(date +%s.%N) $(MAKE_START) $(STAMP) $(CACHE_AT_START) $(PRESET) || exit 1; fi
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"
 
 # Unit tests + every notebook under nbmake at the `ci` preset (tests/test_notebooks_robogym.py runs

@@ -681,11 +681,17 @@ def render_times_block(times: dict) -> str:
     by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in BLOCK_ENVS}
     total = sum(by_env.values())
     preset = times.get("preset", DEFAULT_PRESET)
-    return (f"The last `make reproduce` ran the notebooks in {format_seconds(total)} at `{preset}` "
+    text = (f"The last `make reproduce` ran the notebooks in {format_seconds(total)} at `{preset}` "
             f"({format_seconds(by_env['block-rearrange'])} on block-rearrange, "
             f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange; "
-            "one thread per process, `figures/notebook_times.json`); creating `.venv` the first time comes "
-            "on top.")
+            "one thread per process, `figures/notebook_times.json`)")
+    run = times.get("run")
+    if not run:
+        return text + "; creating `.venv` the first time comes on top."
+    start = {(True, True): "a fresh clone (no `.venv`, no `.cache`)", (True, False): "no `.venv`",
+             (False, True): "an empty `.cache`", (False, False): "`.venv` and `.cache` in place"}
+    return (text + f"; the last whole run, from {start[run['venv_created'], run['cache_was_empty']]}, took "
+            f"{format_seconds(run['seconds'])} of wall time on {run.get('cores', '?')} cores.")
 
 
 def render_notebooks_block(times: dict, titles: dict) -> str:

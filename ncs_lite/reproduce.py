@@ -18,6 +18,7 @@ The segmentation and success measures are the ones notebooks 03 and 06 report.
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -370,6 +371,21 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
     path = folder / "notebook_times.json"
     times = json.loads(path.read_text()) if path.exists() else {}
     times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
+    times.update(preset=preset, **provenance(path, allow_dirty=True))
+    atomic_write_json(path, times)
+    if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
+        write_docs()
+
+
+def record_run_time(seconds: float, venv_created: bool, cache_was_empty: bool, preset: str = "reduced") -> None:
+    """Add the whole `make reproduce` run's wall time to notebook_times.json (`"run"`): from
+    make's start to the last notebook, creating `.venv` included when this run created it;
+    `cache_was_empty` says whether it started without `.cache/` (a fresh clone's case)."""
+    folder = figures_dir() if preset == "reduced" else REPO_DIR / "build" / "figures" / preset
+    path = folder / "notebook_times.json"
+    times = json.loads(path.read_text()) if path.exists() else {}
+    times["run"] = {"seconds": round(float(seconds), 1), "venv_created": bool(venv_created),
+                    "cache_was_empty": bool(cache_was_empty), "cores": os.cpu_count()}
     times.update(preset=preset, **provenance(path, allow_dirty=True))
     atomic_write_json(path, times)
     if preset == "reduced" and figures_dir() == REPO_DIR / "figures":

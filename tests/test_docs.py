@@ -195,3 +195,15 @@ def test_the_readme_lists_appendix_d_claims_one_row_per_statement():
     block = render_results_block({"fig10_reduced.json": {"table": "fig10_reduced", "claims": claims, "rows": [],
                                                           "commit": "abc1234"}})
     assert "Appendix D's claims" in block and "`fig10_reduced` at abc1234" in block
+
+
+def test_the_times_block_quotes_the_whole_run_and_where_it_started():
+    from ncs_lite.docs import render_times_block
+
+    times = {"preset": "reduced", "seconds": {"00_overview": 60.0, "04_dslate_training_robogym": 120.0}}
+    assert "comes on top" in render_times_block(times)             # no whole run recorded yet
+    times["run"] = {"seconds": 600.0, "venv_created": True, "cache_was_empty": True, "cores": 2}
+    text = render_times_block(times)
+    assert "from a fresh clone (no `.venv`, no `.cache`), took 10.0 min of wall time on 2 cores" in text
+    times["run"].update(venv_created=False, cache_was_empty=False)
+    assert "`.venv` and `.cache` in place" in render_times_block(times)
