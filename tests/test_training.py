@@ -296,6 +296,25 @@ def test_each_phase_moves_only_the_parts_it_trains(buffer, tmp_path):
         train(cfg, buffer, tmp_path / "long.pt", max_steps=13)
 
 
+def test_bench_times_the_trainers_own_step(monkeypatch):
+    from ncs_lite import training
+    from ncs_lite.bench import train_step as bench
+
+    steps = []
+
+    def spy(model, opt, phase, *args, **kwargs):
+        steps.append(phase.name)
+        return training.train_step(model, opt, phase, *args, **kwargs)
+
+    monkeypatch.setattr(bench, "train_step", spy)
+    cfg, cpu = get_preset("ci"), torch.device("cpu")
+    model = DSlate(cfg)
+    frames, actions = bench._batch(cfg, 2, cpu)
+    before = model.slot_attn.mu.detach().clone()
+    assert bench.step_flops(model, training.build_optimizer(model, cfg), frames, actions, cpu, "fp32") > 0
+    assert steps == ["main"] and not torch.equal(before, model.slot_attn.mu)   # a real step, the main phase's
+
+
 def test_cli_subcommand():
     import argparse
 
