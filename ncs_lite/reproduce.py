@@ -46,8 +46,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
     share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
     sharing one, most first), as notebook 03 measures them: `images` frames of the
-    held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
-    model's K), `restarts` starts per image."""
+    held-out buffer (seed + 1000), the model's `slots.eval_iterations` (7 at `reduced`), one slot
+    per object plus one (at least the model's K), `restarts` starts per image."""
     from .data import cached_buffer, load_buffer
     from .metrics import (_colour_ids, foreground_ari, in_floor_slot, shared_slot_pairs, shared_with_another,
                           slot_assignment)
@@ -61,7 +61,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     slots = max(model.cfg.slots.num_slots, num_objects + 1)
     aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
+        r = model.infer(frames[i:i + 50], iterations=model.cfg.slots.eval_iterations, num_slots=slots,
+                        restarts=restarts)
         aris.append(foreground_ari(r.masks, masks[i:i + 50]))
         owner, background = slot_assignment(r.masks, masks[i:i + 50])
         owners.append(owner)
