@@ -198,22 +198,10 @@ class TrainConfig:
         """Optimizer steps of the schedule: epochs x episodes per epoch / batch size."""
         return max(1, math.ceil(self.epochs * self.episodes_per_epoch / self.batch_size))
 
-    def polish_end(self) -> int:
-        """The step at which the polish ends and the dynamics phase begins."""
-        return self.main_steps() + self.polish_steps
-
-    def dynamics_end(self) -> int:
-        """The step at which the dynamics phase ends and the render phase begins."""
-        return self.polish_end() + self.dynamics_steps
-
-    def render_end(self) -> int:
-        """The step at which the render phase ends and the refit phase begins."""
-        return self.dynamics_end() + self.render_steps
-
     def total_steps(self) -> int:
-        """Optimizer steps of a full run: the schedule, the polish, the dynamics, render and
-        refit phases."""
-        return self.render_end() + self.refit_steps
+        """Optimizer steps of a full run: the schedule's, then the polish, dynamics, render and
+        refit steps (the run as a list of phases: training.phases)."""
+        return self.main_steps() + self.polish_steps + self.dynamics_steps + self.render_steps + self.refit_steps
 
 
 @dataclass
@@ -305,6 +293,9 @@ class DSlateConfig:
         if self.mixture.render_hidden and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
             raise ValueError("mixture.render_hidden > 0 draws masks for the mixture decoder to paint and "
                              "needs it (mixture.weight > 0) with mixture.alpha 'attention'")
+        if self.train.dvae_warmup_steps > self.train.main_steps():
+            raise ValueError(f"train.dvae_warmup_steps ({self.train.dvae_warmup_steps}) are the schedule's first "
+                             f"steps and cannot exceed its {self.train.main_steps()} (train.main_steps())")
         if self.train.render_mask_steps > self.train.render_steps:
             raise ValueError(f"train.render_mask_steps ({self.train.render_mask_steps}) are the render phase's "
                              f"first steps and cannot exceed train.render_steps ({self.train.render_steps})")

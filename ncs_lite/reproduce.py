@@ -66,8 +66,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
     share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
     sharing one, most first), as notebook 03 measures them: `images` frames of the
-    held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
-    model's K), `restarts` starts per image."""
+    held-out buffer (seed + 1000), the model's `slots.eval_iterations` (7 at `reduced`), one slot
+    per object plus one (at least the model's K), `restarts` starts per image."""
     data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
                                      seed=seed + HELDOUT_SEED))
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
@@ -77,7 +77,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     slots = max(model.cfg.slots.num_slots, num_objects + 1)
     aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
+        r = model.infer(frames[i:i + 50], iterations=model.cfg.slots.eval_iterations, num_slots=slots,
+                        restarts=restarts)
         aris.append(foreground_ari(r.masks, masks[i:i + 50]))
         owner, background = slot_assignment(r.masks, masks[i:i + 50])
         owners.append(owner)

@@ -8,17 +8,17 @@ What the loop guarantees:
   windows are read in a stream of seeded permutations of the dataset. A checkpoint holds
   the model, the Adam state, the step, torch's RNG state (gumbel noise, slot samples,
   dropout) and the config, so `--resume` continues bit-for-bit like an uninterrupted run.
-* Schedules are functions of the step: gumbel tau (cosine, `tau_schedule`), the lr of
-  slot attention / decoder / dynamics (linear warm-up, then constant or cosine), and the
-  dVAE's constant lr (no warm-up), as in Table 2. Optional polish steps follow the schedule
-  (`TrainConfig.polish_steps`: constant lr, dVAE frozen, another foreground weight), then
-  optional dynamics steps (`TrainConfig.dynamics_steps`: the dynamics alone, latent loss),
-  then optional render steps (`TrainConfig.render_steps`: the renderer alone, mask then
-  pixel loss), then optional refit steps (`TrainConfig.refit_steps`: the dynamics alone
-  again, on states read with `slots.position_prior`, which acts from the render phase on).
-  With `TrainConfig.color_augment` the mixture loss reads each video with its colour
-  channels permuted (and, with "channels_gamma", each raised to a random power;
-  data/augment.py), drawn from (seed, step) like the batch. Why each phase: docs/recipe.md.
+* Phases as data. A run is a list of phases (`phases(cfg)`, each a `Phase`: its steps, its
+  lr schedule, the parts it trains and its loss), derived from the config. `paper` is one
+  phase, Table 2's: every part trains jointly, slot attention, decoder and dynamics at a
+  linearly warmed-up lr, the dVAE at its constant lr. `reduced` trains the dVAE alone first,
+  and after the main phase polishes (dVAE frozen, another mixture loss), trains the dynamics
+  alone (latent loss), fits the renderer alone (masks, then pixels) and refits the dynamics
+  on states read with `slots.position_prior`. The gumbel tau follows the global step
+  (cosine, `tau_schedule`). With `TrainConfig.color_augment` the mixture loss reads each
+  video with its colour channels permuted (and, with "channels_gamma", each raised to a
+  random power; data/augment.py), drawn from (seed, step) like the batch. Why each phase:
+  docs/recipe.md.
 * Gradient clipping: `clip_grad_norm_` with max norm `train.grad_clip` (1.0) of the
   *inf*-norm (largest absolute gradient entry), as SLATE's reference code does.
 * Mixed precision: bf16 autocast where it is faster (AMX CPUs, recent GPUs); fp32 else.
@@ -35,9 +35,9 @@ What the loop guarantees:
   a new run at an existing checkpoint needs `force` (which deletes the old run's checkpoint
   and loss log first, so the two never mix); a lock file (`<out>.lock`) makes two runs on
   one `out` refuse each other. `--extend` continues a *finished* run into a new file under a
-  schedule that only adds later phases (`EXTENDABLE`: the dynamics, render and refit phases
-  and the position prior; the renderer, which only the render phase trains, may be new),
-  recording the run it extends in `lineage`. Each checkpoint records the commit
+  schedule that only adds later phases (`EXTENDABLE`: the fields of the dynamics, render and
+  refit phases and the position prior; the renderer, which only the render phases train, may
+  be new), recording the run it extends in `lineage`. Each checkpoint records the commit
   (`provenance`: writing into `ncs_lite/assets/` from a dirty tree is refused), the `--set`
   overrides, and the buffer's path (relative to the repo) and manifest hash.
 """
@@ -46,9 +46,11 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import itertools
 import os
 import shutil
 import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +69,8 @@ from .tensor_files import atomic_torch_save, tensor_digest
 from .utils import (cache_dir, check_out_file, package_versions, progress, provenance, relative_to_repo,
                     seed_everything, sha256_file, source_hash)
 
-__all__ = ["train", "obtain_dslate", "resolve_precision", "lr_at", "build_optimizer", "autocast",
+__all__ = ["train", "obtain_dslate", "resolve_precision", "Phase", "phases", "lr_at", "train_step",
+           "build_optimizer", "autocast",
            "training_code_version", "run_lock"]
 
 # The sources whose changes can change a training run (model, loop, config, data, rendering).
@@ -102,29 +105,82 @@ def autocast(device: torch.device, precision: str):
     return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
-# ---------------------------------------------------------------------- schedules and data order
+# ---------------------------------------------------------------------- phases and data order
+# The parts of DSlate (its attributes that hold parameters) that the SLATE loss trains; the
+# renderer, the one other part, trains alone in the render phases.
+SLATE_PARTS = ("dvae", "token_emb", "pos_emb", "mask_emb", "pixel_encoder", "sa_in", "slot_attn", "decoder",
+               "dynamics", "mixture", "state_masks")
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A stretch of training with one loss, one lr schedule and the parts it trains: a run
+    is a list of them (`phases`), so that each stage of the recipe reads as one row."""
+    name: str
+    steps: int
+    loss: str                   # what it minimises (`train_step`): "dvae" the dVAE's reconstruction
+    #                             alone, "slate" DSlate.forward's sum, "dynamics" the latent loss
+    #                             (DSlate.dynamics_loss), "render_masks" / "render" DSlate.render_loss
+    #                             on slot attention's masks / on the frames
+    trains: tuple[str, ...]     # the parts (SLATE_PARTS, "renderer") whose weights move; the rest is frozen
+    lr: float = 0.0             # lr of every part but the dVAE: the peak after `warmup`
+    warmup: int = 0             # steps of linear warm-up at the phase's start
+    decay: str = "none"         # after the warm-up: "none" (constant) or "cosine" to 0.1 lr at the end
+    dvae_lr: float = 0.0        # the dVAE's lr, constant (Table 2: no warm-up); 0 = frozen
+    foreground_weight: float | None = None  # the mixture loss's (None: mixture.foreground_weight)
+    mixture_error: str | None = None        # the mixture loss's (None: mixture.error)
+    augment: str = "none"       # the colour augmentation of the mixture loss's videos (data/augment.py)
+    position_prior: float = 0.0  # DSlate.position_prior while it trains
+    start: int = 0              # the run's step at which it begins
+
+    @property
+    def end(self) -> int:
+        """The run's step at which the next phase begins."""
+        return self.start + self.steps
+
+    def lr_at(self, i: int) -> float:
+        """lr of every part but the dVAE at step `i` of this phase: linear warm-up to `lr`,
+        then constant or a cosine decay to 10% of it at the phase's last step."""
+        warm = min(1.0, (i + 1) / self.warmup) if self.warmup > 0 else 1.0
+        if self.decay == "cosine" and i >= self.warmup:
+            return cosine_anneal(i - self.warmup, self.lr, 0.1 * self.lr, max(1, self.steps - self.warmup))
+        return self.lr * warm
+
+
+def phases(cfg: DSlateConfig) -> list[Phase]:
+    """The run's phases in order, derived from `cfg`; those of 0 steps are left out, so
+    `paper` is one phase ("main", Table 2) and `reduced` seven (why each: docs/recipe.md)."""
+    return [p for p in _all_phases(cfg) if p.steps > 0]
+
+
+def _all_phases(cfg: DSlateConfig) -> list[Phase]:
+    """Every phase the trainer knows, in order, each with its start: one of 0 steps starts
+    where a longer one would (what `--extend` checks a finished run against)."""
+    t, prior = cfg.train, cfg.slots.position_prior
+    plan = [
+        Phase("dvae_warmup", t.dvae_warmup_steps, "dvae", ("dvae",), dvae_lr=cfg.dvae.lr),
+        Phase("main", t.main_steps() - t.dvae_warmup_steps, "slate", SLATE_PARTS, lr=t.lr,
+              warmup=t.warmup_steps, decay=t.lr_decay, dvae_lr=cfg.dvae.lr, augment=t.color_augment),
+        Phase("polish", t.polish_steps, "slate", SLATE_PARTS[1:], lr=t.polish_lr,
+              foreground_weight=t.polish_foreground_weight, mixture_error=t.polish_mixture_error,
+              augment=t.color_augment),
+        Phase("dynamics", t.dynamics_steps, "dynamics", ("dynamics",), lr=t.dynamics_lr),
+        Phase("render_masks", t.render_mask_steps, "render_masks", ("renderer",), lr=t.render_lr,
+              position_prior=prior),
+        Phase("render", t.render_steps - t.render_mask_steps, "render", ("renderer",), lr=t.render_lr,
+              position_prior=prior),
+        Phase("refit", t.refit_steps, "dynamics", ("dynamics",), lr=t.dynamics_lr, position_prior=prior),
+    ]
+    starts = itertools.accumulate((p.steps for p in plan), initial=0)
+    return [replace(p, start=start) for p, start in zip(plan, starts)]
+
+
 def lr_at(step: int, cfg: DSlateConfig) -> float:
-    """lr of slot attention, decoder and dynamics at `step`: linear warm-up to the peak,
-    then constant ('none') or a cosine decay to 10% of the peak at the schedule's last step
-    ('cosine'); then `polish_lr` for the polish steps, `dynamics_lr` and `render_lr` for the
-    dynamics and render phases, `dynamics_lr` again for the refit phase."""
-    t = cfg.train
-    if t.refit_steps and step >= t.render_end():
-        return t.dynamics_lr
-    if t.render_steps and step >= t.dynamics_end():
-        return t.render_lr
-    if t.dynamics_steps and step >= t.polish_end():
-        return t.dynamics_lr
-    if step >= t.main_steps():
-        return t.polish_lr
-    step = step - t.dvae_warmup_steps          # this schedule starts after the dVAE warm-up
-    if step < 0:
-        return 0.0
-    warm = min(1.0, (step + 1) / t.warmup_steps) if t.warmup_steps > 0 else 1.0
-    if t.lr_decay == "cosine" and step >= t.warmup_steps:
-        total = t.main_steps() - t.dvae_warmup_steps
-        return cosine_anneal(step - t.warmup_steps, t.lr, 0.1 * t.lr, max(1, total - t.warmup_steps))
-    return t.lr * warm
+    """lr of every part but the dVAE at the run's `step`: its phase's (`Phase.lr_at`); past
+    the last phase, the last phase's schedule continued."""
+    run = phases(cfg)
+    phase = next((p for p in run if step < p.end), run[-1])
+    return phase.lr_at(step - phase.start)
 
 
 class BatchOrder:
@@ -149,8 +205,9 @@ class BatchOrder:
 
 
 def build_optimizer(model: DSlate, cfg: DSlateConfig) -> torch.optim.Adam:
-    """Adam with groups: the dVAE (constant lr), everything else (warm-up lr) but the renderer,
-    and the renderer (same lr), last, so that a run extended by it keeps the others' state."""
+    """Adam with groups: the dVAE (its phase's `dvae_lr`), everything else but the renderer,
+    and the renderer (both at its phase's `lr_at`), last, so that a run extended by it keeps
+    the others' state."""
     dvae = list(model.dvae.parameters())
     renderer = list(model.renderer.parameters()) if model.renderer is not None else []
     ids = {id(p) for p in dvae + renderer}
@@ -230,13 +287,13 @@ def _check_continuable(ckpt: dict, what: str) -> None:
                          "use --force to start afresh")
 
 
-# Fields that act only on the phases after the polish, each with the phase it acts from: a
-# finished run may be extended by them (`--extend`) without retraining what came before.
-EXTENDABLE = {"train.dynamics_steps": "polish_end", "train.dynamics_lr": "polish_end",
-              "train.render_steps": "dynamics_end", "train.render_lr": "dynamics_end",
-              "train.render_mask_steps": "dynamics_end",
-              "mixture.render_hidden": "dynamics_end", "slots.position_prior": "dynamics_end",
-              "train.refit_steps": "render_end"}
+# Fields that act only from a phase after the polish on, each with that phase (`_all_phases`):
+# a finished run may be extended by them (`--extend`) without retraining what came before.
+EXTENDABLE = {"train.dynamics_steps": "dynamics", "train.dynamics_lr": "dynamics",
+              "train.render_steps": "render_masks", "train.render_lr": "render_masks",
+              "train.render_mask_steps": "render_masks",
+              "mixture.render_hidden": "render_masks", "slots.position_prior": "render_masks",
+              "train.refit_steps": "refit"}
 # what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
 ADDED_BY_EXTENDING = ("renderer.",)
 
@@ -251,7 +308,8 @@ def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict)
     if step < done:
         problems.append(f"it stopped at step {step} of its {done}: --resume it first")
     changed = [f for f in EXTENDABLE if any(d.startswith(f"{f}:") for d in differences)]
-    starts = {f: getattr(cfg.train, EXTENDABLE[f])() for f in changed}
+    start = {p.name: p.start for p in _all_phases(cfg)}
+    starts = {f: start[EXTENDABLE[f]] for f in changed}
     late = [f"{f} (from step {starts[f]})" for f in changed if step > starts[f]]
     if late:
         problems.append(f"it is at step {step}, past where the changed fields act: {', '.join(late)}; "
@@ -261,27 +319,45 @@ def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict)
     return problems
 
 
-def _save(path, model, opt, cfg, step, device, precision, env, data_meta, seconds, last,
-          version, overrides, lineage=()) -> None:
+@dataclass
+class _Run:
+    """What a run records beside its weights (its config, where it writes, the buffer, the
+    code it comes from), held in one place so that the loop and `_save` take it whole."""
+    cfg: DSlateConfig
+    out_path: Path
+    device: torch.device
+    precision: str
+    env: str
+    data_meta: dict
+    version: dict
+    overrides: list
+    lineage: list = field(default_factory=list)   # the finished runs it extends (`--extend`), oldest first
+
+    @property
+    def csv_path(self) -> Path:
+        return self.out_path.with_suffix(".csv")
+
+
+def _save(run: _Run, model, opt, step: int, seconds: float, last: dict) -> None:
     ckpt = {
         "kind": CHECKPOINT_KIND,
         "format": CHECKPOINT_FORMAT,
         "model_version": MODEL_VERSION,
-        "code_version": version,
-        "overrides": list(overrides),
-        "config": to_dict(cfg),
-        "env": env,
-        "data": data_meta,
+        "code_version": run.version,
+        "overrides": list(run.overrides),
+        "config": to_dict(run.cfg),
+        "env": run.env,
+        "data": run.data_meta,
         "step": step,
-        "precision": precision,
+        "precision": run.precision,
         "seconds": seconds,
         "last": last,
         "model": model.state_dict(),
         "optimizer": opt.state_dict(),
-        "rng": _rng_state(device),
-        "lineage": list(lineage),    # the finished runs this one extends (`--extend`), oldest first
+        "rng": _rng_state(run.device),
+        "lineage": list(run.lineage),
     }
-    atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, path)
+    atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, run.out_path)
 
 
 # ---------------------------------------------------------------------- the loop
@@ -292,11 +368,9 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
           extend: str | Path | None = None) -> Path:
     """Train dSLATE on the buffer in `data_dir`; write checkpoints to `out_path`.
 
-    Runs until `cfg.train.total_steps()` (the schedule's epochs x episodes per epoch / batch,
-    then `polish_steps`, `dynamics_steps`, `render_steps` and `refit_steps`) or, if given,
-    until global step `max_steps` (schedules still follow the full run, so a run stopped with
-    `max_steps` and resumed matches an uninterrupted one).
-    Returns `out_path`.
+    Runs the config's `phases` to `cfg.train.total_steps()` or, if given, to global step
+    `max_steps` (schedules still follow the full run, so a run stopped with `max_steps` and
+    resumed matches an uninterrupted one). Returns `out_path`.
     `precision` overrides `cfg.train.precision` ('auto', 'bf16', 'fp32').
     `compile` runs the forward through `torch.compile` (inductor: fuses the elementwise work
     around the matmuls; what it gains: docs/benchmarks.md, `bench train`). The first steps
@@ -314,9 +388,22 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     precision = resolve_precision(precision or cfg.train.precision, device)
     total = cfg.train.total_steps()
     stop = total if max_steps is None else int(max_steps)
-    if stop < 1:
-        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    if not 1 <= stop <= total:
+        raise ValueError(f"max_steps must be in 1..{total} (the last step of the config's phases), got {max_steps}")
+    run = _Run(cfg, out_path, device, precision, env, _buffer_meta(cfg, data_dir, env),
+               code_version(out_path, allow_dirty), list(overrides))
+    with run_lock(out_path):
+        ckpt = _previous_run(run, resume, extend, force)
+        dataset = EpisodeDataset(data_dir, window=cfg.train.window)
+        check_actions(data_dir, dataset.actions.numpy())
+        order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
+        return _loop(run, dataset, order, stop, ckpt, compile, extending=extend is not None)
 
+
+
+def _buffer_meta(cfg: DSlateConfig, data_dir, env: str) -> dict:
+    """The buffer's path (relative to the repo), size, seed and manifest hash, recorded in
+    every checkpoint; ValueError when it was collected on another env or image size."""
     if env not in ENVIRONMENTS:
         raise ValueError(f"unknown environment {env!r}; expected one of {', '.join(ENVIRONMENTS)}")
     manifest = load_manifest(data_dir)
@@ -327,142 +414,161 @@ def train(cfg: DSlateConfig, data_dir: str | Path, out_path: str | Path, resume:
     if size != cfg.image_size:
         raise ValueError(f"the buffer {data_dir} holds {size}x{size} images, but the config's image_size is "
                          f"{cfg.image_size}; train with --set image_size={size} or on another buffer")
-    data_meta = {"dir": relative_to_repo(data_dir), "episodes": int(manifest["episodes"]),
-                 "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
-    csv_path = out_path.with_suffix(".csv")
-    version = code_version(out_path, allow_dirty)
-    lineage = []
-    with run_lock(out_path):
-        if extend is not None:
-            if resume:
-                raise ValueError("--extend starts a new run from a finished one; it cannot --resume as well")
-            extend = Path(extend)
-            if extend.resolve() == out_path.resolve():
-                raise ValueError(f"--extend {extend} and --out are the same file; write the extended run "
-                                 "to another --out (the finished run is kept)")
-            ckpt = read_checkpoint(extend, map_location=device)
-            _check_continuable(ckpt, f"cannot extend {extend}")
-            problems = _extend_problems(ckpt, cfg, precision, env, data_meta)
-            if problems:
-                raise ValueError(f"cannot extend {extend}: {'; '.join(problems)}")
-            lineage = list(ckpt.get("lineage") or []) + [{
-                "path": relative_to_repo(extend), "sha256": sha256_file(extend), "step": int(ckpt["step"]),
-                "code_version": ckpt.get("code_version"),
-                "fields": {f: ckpt["config"].get(f.split(".")[0], {}).get(f.split(".")[1]) for f in EXTENDABLE}}]
+    return {"dir": relative_to_repo(data_dir), "episodes": int(manifest["episodes"]),
+            "seed": int(manifest["seed"]), "manifest_sha256": manifest_hash(data_dir)}
+
+
+def _previous_run(run: _Run, resume: bool, extend, force: bool) -> dict | None:
+    """The checkpoint the run continues (`resume`: its own; `extend`: a finished run's, whose
+    loss log it copies), or None to start afresh (`force` deletes an old run first); sets
+    `run.lineage`. ValueError naming why when that checkpoint does not fit the run."""
+    out_path, csv_path, ckpt = run.out_path, run.csv_path, None
+    if extend is not None:
         if resume:
-            if not out_path.exists():
-                raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
-            ckpt = read_checkpoint(out_path, map_location=device)
-            _check_continuable(ckpt, f"cannot resume {out_path}")
-            lineage = list(ckpt.get("lineage") or [])
-            diff = _resume_differences(ckpt, cfg, precision, env, data_meta)
-            if diff:
-                raise ValueError(f"cannot resume {out_path}: it differs from this run (checkpoint vs "
-                                 f"requested): {'; '.join(diff)}. Use the same settings, another --out, "
-                                 "or --force to start afresh")
-        elif out_path.exists() or csv_path.exists():
-            if not force:
-                what = out_path if out_path.exists() else csv_path
-                raise ValueError(f"{what} already exists: pass --resume to continue that run or "
-                                 "--force to delete it and start afresh")
-            for p in (out_path, csv_path):
-                p.unlink(missing_ok=True)
-        if extend is not None:          # the finished run's log, continued (cut at its step by _loop)
-            out_path.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(extend.with_suffix(".csv"), csv_path)
-        dataset = EpisodeDataset(data_dir, window=cfg.train.window)
-        check_actions(data_dir, dataset.actions.numpy())
-        order = BatchOrder(len(dataset), cfg.train.batch_size, cfg.train.seed)
-        return _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env,
-                     data_meta, version, overrides, stop, ckpt if (resume or extend is not None) else None,
-                     lineage, extending=extend is not None)
+            raise ValueError("--extend starts a new run from a finished one; it cannot --resume as well")
+        extend = Path(extend)
+        if extend.resolve() == out_path.resolve():
+            raise ValueError(f"--extend {extend} and --out are the same file; write the extended run "
+                             "to another --out (the finished run is kept)")
+        ckpt = read_checkpoint(extend, map_location=run.device)
+        _check_continuable(ckpt, f"cannot extend {extend}")
+        problems = _extend_problems(ckpt, run.cfg, run.precision, run.env, run.data_meta)
+        if problems:
+            raise ValueError(f"cannot extend {extend}: {'; '.join(problems)}")
+        run.lineage = list(ckpt.get("lineage") or []) + [{
+            "path": relative_to_repo(extend), "sha256": sha256_file(extend), "step": int(ckpt["step"]),
+            "code_version": ckpt.get("code_version"),
+            "fields": {f: ckpt["config"].get(f.split(".")[0], {}).get(f.split(".")[1]) for f in EXTENDABLE}}]
+    if resume:
+        if not out_path.exists():
+            raise FileNotFoundError(f"--resume given but there is no checkpoint at {out_path}")
+        ckpt = read_checkpoint(out_path, map_location=run.device)
+        _check_continuable(ckpt, f"cannot resume {out_path}")
+        run.lineage = list(ckpt.get("lineage") or [])
+        diff = _resume_differences(ckpt, run.cfg, run.precision, run.env, run.data_meta)
+        if diff:
+            raise ValueError(f"cannot resume {out_path}: it differs from this run (checkpoint vs "
+                             f"requested): {'; '.join(diff)}. Use the same settings, another --out, "
+                             "or --force to start afresh")
+        return ckpt
+    if out_path.exists() or csv_path.exists():
+        if not force:
+            what = out_path if out_path.exists() else csv_path
+            raise ValueError(f"{what} already exists: pass --resume to continue that run or "
+                             "--force to delete it and start afresh")
+        for p in (out_path, csv_path):
+            p.unlink(missing_ok=True)
+    if extend is not None:          # the finished run's log, continued (cut at its step by _loop)
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(extend.with_suffix(".csv"), csv_path)
+    return ckpt
 
 
-def _loop(cfg, dataset, order, out_path, csv_path, device, precision, compile, env, data_meta,
-          version, overrides, stop, ckpt, lineage=(), extending=False) -> Path:
+def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, compile: bool,
+          extending: bool) -> Path:
+    """Train from `ckpt` (None: from the seeded initialisation) to step `stop`, phase by
+    phase: a row of the loss log every step, a checkpoint every `checkpoint_every` and at `stop`."""
+    cfg = run.cfg
     seed_everything(cfg.train.seed)
-    model = DSlate(cfg).to(device)
+    model = DSlate(cfg).to(run.device)
     forward = torch.compile(model) if compile else model          # same parameters
     opt = build_optimizer(model, cfg)
-    step, seconds = 0, 0.0
-    resume = ckpt is not None
-    if resume:
-        _restore(model, opt, ckpt, out_path, extending)
-        _set_rng_state(ckpt["rng"], device)
-        step, seconds = int(ckpt["step"]), float(ckpt["seconds"])
-        _truncate_csv(csv_path, step)
+    first, seconds, last_saved = 0, 0.0, None
+    if ckpt is not None:
+        _restore(model, opt, ckpt, run.out_path, extending)
+        _set_rng_state(ckpt["rng"], run.device)
+        first, seconds = int(ckpt["step"]), float(ckpt["seconds"])
+        last_saved = first
+        _truncate_csv(run.csv_path, first)
     else:
-        out_path.parent.mkdir(parents=True, exist_ok=True)
-        with open(csv_path, "w", newline="") as f:
+        run.out_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(run.csv_path, "w", newline="") as f:
             csv.writer(f).writerow(CSV_FIELDS)
-
     model.train()
-    params = list(model.parameters())
-    last_saved = step if resume else None
-    bar = progress(total=stop, initial=min(step, stop), desc=f"train dSLATE ({cfg.name}, {precision})",
+    bar = progress(total=stop, initial=min(first, stop), desc=f"train dSLATE ({cfg.name}, {run.precision})",
                    unit="step")
-    csv_file = open(csv_path, "a", newline="")
-    writer = csv.writer(csv_file)
     try:
-        while step < stop:
-            t0 = time.perf_counter()
-            idx = order(step)
-            items = [dataset[int(i)] for i in idx]
-            frames = torch.stack([it["frames"] for it in items]).to(device, non_blocking=True)
-            actions = torch.stack([it["actions"] for it in items]).to(device, non_blocking=True)
-            tau, lr = tau_schedule(step, cfg.dvae), lr_at(step, cfg)
-            polishing = step >= cfg.train.main_steps()
-            for g in opt.param_groups:
-                g["lr"] = (0.0 if polishing else cfg.dvae.lr) if g.get("name") == "dvae" else lr
-
-            dvae_only = step < cfg.train.dvae_warmup_steps
-            augmented = None
-            if cfg.train.color_augment != "none" and not dvae_only and step < cfg.train.polish_end():
-                # drawn from (seed, step) alone, like the batch, so a resumed run sees the same
-                augmented = augment_colors(cfg.train.color_augment, frames,
-                                           np.random.default_rng([cfg.train.seed, step, 1]))
-            model.position_prior = cfg.slots.position_prior if step >= cfg.train.dynamics_end() else 0.0
-            with autocast(device, precision):
-                if cfg.train.dynamics_end() <= step < cfg.train.render_end():   # the renderer alone
-                    masks = step < cfg.train.dynamics_end() + cfg.train.render_mask_steps
-                    out = model.render_loss(frames, masks=masks)
-                elif step >= cfg.train.polish_end():     # the dynamics and refit phases: it alone
-                    out = model.dynamics_loss(frames, actions)
-                else:
-                    out = forward(frames, actions, tau, dvae_only=dvae_only,
-                                  foreground_weight=cfg.train.polish_foreground_weight if polishing else None,
-                                  mixture_videos=augmented,
-                                  mixture_error=cfg.train.polish_mixture_error if polishing else None)
-            loss = out["loss"]
-            if not torch.isfinite(loss):
-                _non_finite("loss", loss, step, out_path, last_saved)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.train.grad_clip,
-                                                       norm_type=float(cfg.train.grad_clip_norm))
-            if not torch.isfinite(grad_norm):
-                _non_finite("gradient norm", grad_norm, step, out_path, last_saved)
-            opt.step()
-            step += 1
-            seconds += time.perf_counter() - t0
-
-            vals = {k: float(v.detach()) for k, v in out.items()}
-            writer.writerow([step, *(f"{vals[k]:.4f}" for k in LOSSES),
-                             f"{tau:.4f}", f"{lr:.3e}", f"{float(grad_norm):.4g}", f"{seconds:.1f}"])
-            bar.update(1)
-            if step % 10 == 0 or step == stop:
-                csv_file.flush()
-                bar.set_postfix(loss=f"{vals['loss']:.1f}", mse=f"{vals['mse']:.1f}",
-                                ce=f"{vals['ce']:.1f}", tau=f"{tau:.2f}")
-            if step % cfg.train.checkpoint_every == 0 or step == stop:
-                csv_file.flush()
-                _save(out_path, model, opt, cfg, step, device, precision, env, data_meta, seconds,
-                      {k: round(v, 4) for k, v in vals.items()}, version, overrides, lineage)
-                last_saved = step
+        with open(run.csv_path, "a", newline="") as csv_file:
+            log = csv.writer(csv_file)
+            for phase in phases(cfg):
+                for step in range(max(first, phase.start), min(stop, phase.end)):
+                    t0 = time.perf_counter()
+                    frames, actions, augmented = _batch(dataset, order, step, phase, run)
+                    tau, lr = tau_schedule(step, cfg.dvae), phase.lr_at(step - phase.start)
+                    try:
+                        out, grad_norm = train_step(model, opt, phase, step - phase.start, frames, actions, tau,
+                                                    run.precision, augmented, forward)
+                    except FloatingPointError as e:
+                        kept = (f"the last good checkpoint {run.out_path} (step {last_saved}) was kept"
+                                if last_saved is not None else "no checkpoint had been written yet")
+                        raise FloatingPointError(f"{e} at step {step + 1}; training stopped and {kept}. Lower "
+                                                 "the learning rate or use precision fp32.") from None
+                    seconds += time.perf_counter() - t0
+                    done, vals = step + 1, {k: float(v.detach()) for k, v in out.items()}
+                    log.writerow([done, *(f"{vals[k]:.4f}" for k in LOSSES), f"{tau:.4f}", f"{lr:.3e}",
+                                  f"{float(grad_norm):.4g}", f"{seconds:.1f}"])
+                    bar.update(1)
+                    if done % 10 == 0 or done == stop:
+                        csv_file.flush()
+                        bar.set_postfix(loss=f"{vals['loss']:.1f}", mse=f"{vals['mse']:.1f}",
+                                        ce=f"{vals['ce']:.1f}", tau=f"{tau:.2f}")
+                    if done % cfg.train.checkpoint_every == 0 or done == stop:
+                        csv_file.flush()
+                        _save(run, model, opt, done, seconds, {k: round(v, 4) for k, v in vals.items()})
+                        last_saved = done
     finally:
-        csv_file.close()
         bar.close()
-    return out_path
+    return run.out_path
+
+
+def _batch(dataset, order: BatchOrder, step: int, phase: Phase, run: _Run):
+    """Step `step`'s videos (B, T, H, W, 3) uint8 and actions (B, T-1, A) on the run's device,
+    and the mixture loss's colour-augmented copy of the videos when the phase augments (else
+    None), drawn from (seed, step) alone like the batch, so a resumed run sees the same."""
+    items = [dataset[int(i)] for i in order(step)]
+    frames = torch.stack([it["frames"] for it in items]).to(run.device, non_blocking=True)
+    actions = torch.stack([it["actions"] for it in items]).to(run.device, non_blocking=True)
+    if phase.augment == "none":
+        return frames, actions, None
+    rng = np.random.default_rng([run.cfg.train.seed, step, 1])
+    return frames, actions, augment_colors(phase.augment, frames, rng)
+
+
+def train_step(model: DSlate, opt: torch.optim.Adam, phase: Phase, i: int, frames: torch.Tensor,
+               actions: torch.Tensor, tau: float, precision: str = "fp32",
+               mixture_videos: torch.Tensor | None = None, forward=None) -> tuple[dict, torch.Tensor]:
+    """One optimizer step at step `i` of `phase`: its lrs (`build_optimizer`'s groups) and
+    position prior, its loss under `precision`'s autocast, backward, gradient clipping
+    (`train.grad_clip` of the `train.grad_clip_norm` norm) and Adam. `forward`: the model's
+    forward to call (default the model; `torch.compile`d in `train --compile`).
+
+    frames (B, T, H, W, 3) uint8, actions (B, T-1, A) -> (the LOSSES, the gradient norm
+    before clipping). FloatingPointError, before the update, on a non-finite loss or
+    gradient. `bench train` times this step.
+    """
+    for g in opt.param_groups:
+        g["lr"] = phase.dvae_lr if g.get("name") == "dvae" else phase.lr_at(i)
+    model.position_prior = phase.position_prior
+    with autocast(frames.device, precision):
+        if phase.loss == "dynamics":
+            out = model.dynamics_loss(frames, actions)
+        elif phase.loss in ("render_masks", "render"):
+            out = model.render_loss(frames, masks=phase.loss == "render_masks")
+        else:
+            out = (model if forward is None else forward)(
+                frames, actions, tau, dvae_only=phase.loss == "dvae", foreground_weight=phase.foreground_weight,
+                mixture_videos=mixture_videos, mixture_error=phase.mixture_error)
+    loss = out["loss"]
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"non-finite loss ({float(loss.detach())})")
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    t = model.cfg.train
+    grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip, norm_type=float(t.grad_clip_norm))
+    if not torch.isfinite(grad_norm):
+        raise FloatingPointError(f"non-finite gradient norm ({float(grad_norm.detach())})")
+    opt.step()
+    return out, grad_norm
 
 
 def _restore(model, opt, ckpt, out_path, extending: bool) -> None:
@@ -482,13 +588,6 @@ def _restore(model, opt, ckpt, out_path, extending: bool) -> None:
     opt.load_state_dict(ckpt["optimizer"])
     for group in added:
         opt.add_param_group(group)
-
-
-def _non_finite(what, value, step, out_path, last_saved):
-    kept = (f"the last good checkpoint {out_path} (step {last_saved}) was kept"
-            if last_saved is not None else "no checkpoint had been written yet")
-    raise FloatingPointError(f"non-finite {what} ({float(value.detach())}) at step {step + 1}; training "
-                             f"stopped and {kept}. Lower the learning rate or use precision fp32.")
 
 
 def _truncate_csv(csv_path: Path, step: int) -> None:

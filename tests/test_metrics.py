@@ -149,7 +149,7 @@ def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colour
     by_frame = {f.tobytes(): i for i, f in enumerate(frames)}
 
     class MergesTheFirstTwo:               # true masks, but cubes 0 and 1 in one slot
-        cfg = SimpleNamespace(slots=SimpleNamespace(num_slots=4))
+        cfg = SimpleNamespace(slots=SimpleNamespace(num_slots=4, eval_iterations=7))
 
         def infer(self, images, iterations, num_slots, restarts):
             m = torch.as_tensor(true[[by_frame[np.asarray(x).tobytes()] for x in images]])

@@ -7,7 +7,7 @@ import torch
 from ncs_lite.config import get_preset, to_dict
 from ncs_lite.inference import load_dslate
 from ncs_lite.models.dslate import DSlate
-from ncs_lite.training import BatchOrder, lr_at, train
+from ncs_lite.training import SLATE_PARTS, BatchOrder, lr_at, phases, train
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +22,11 @@ def ci(**train):
     for k, v in train.items():
         setattr(cfg.train, k, v)
     return cfg
+
+
+def starts(cfg):
+    """{phase name: its first step} of the config's phases."""
+    return {p.name: p.start for p in phases(cfg)}
 
 
 def rows(path):
@@ -67,7 +72,7 @@ def test_resume_equals_uninterrupted_run(buffer, tmp_path):
 def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tmp_path, monkeypatch):
     cfg = ci()                                                # 4 scheduled steps, then 2 polish steps
     main = cfg.train.main_steps()
-    assert cfg.train.polish_end() == main + cfg.train.polish_steps == main + 2
+    assert starts(cfg)["polish"] == main and starts(cfg)["dynamics"] == main + cfg.train.polish_steps == main + 2
     before = train(cfg, buffer, tmp_path / "m.pt", max_steps=main)
     before = {k: v.clone() for k, v in torch.load(before, weights_only=True)["model"].items()}
     weights, forward = [], DSlate.forward
@@ -91,8 +96,8 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
 
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 dynamics steps
-    end = cfg.train.polish_end()
-    assert cfg.train.dynamics_end() == end + cfg.train.dynamics_steps == end + 2
+    end = starts(cfg)["dynamics"]
+    assert starts(cfg)["render_masks"] == end + cfg.train.dynamics_steps == end + 2
     before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
     before = {k: v.clone() for k, v in before.items()}
     after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=end + 2), weights_only=True)
@@ -108,8 +113,8 @@ def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_
 
 def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 render steps
-    end = cfg.train.dynamics_end()
-    assert cfg.train.render_end() == end + cfg.train.render_steps == end + 2
+    end = starts(cfg)["render_masks"]
+    assert starts(cfg)["refit"] == end + cfg.train.render_steps == end + 2
     assert lr_at(end, cfg) == cfg.train.render_lr and lr_at(end - 1, cfg) == cfg.train.dynamics_lr
     before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
     before = {k: v.clone() for k, v in before.items()}
@@ -130,7 +135,7 @@ def test_render_steps_fit_the_renderer_alone_to_the_frames(buffer, tmp_path):
 
 def test_refit_steps_train_the_dynamics_alone_again_after_the_render_phase(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 refit steps
-    end = cfg.train.render_end()
+    end = starts(cfg)["refit"]
     assert cfg.train.total_steps() == end + cfg.train.refit_steps == end + 2
     assert lr_at(end, cfg) == cfg.train.dynamics_lr and lr_at(end - 1, cfg) == cfg.train.render_lr
     before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=end), weights_only=True)["model"]
@@ -237,11 +242,12 @@ def test_schedules_and_batch_order():
     red = get_preset("reduced")
     main = red.train.main_steps()
     assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
-    assert red.train.polish_end() == main + red.train.polish_steps == 3700
-    assert red.train.dynamics_end() == 3700 + red.train.dynamics_steps == 5700
-    assert red.train.render_end() == 5700 + red.train.render_steps == 9700
+    start = starts(red)
+    assert start["dynamics"] == main + red.train.polish_steps == 3700
+    assert start["render_masks"] == 3700 + red.train.dynamics_steps == 5700
+    assert start["refit"] == 5700 + red.train.render_steps == 9700
     assert red.train.total_steps() == 9700 + red.train.refit_steps == 11700
-    assert lr_at(main, red) == lr_at(red.train.polish_end() - 1, red) == red.train.polish_lr
+    assert lr_at(main, red) == lr_at(3699, red) == red.train.polish_lr
     assert lr_at(3700, red) == lr_at(5699, red) == red.train.dynamics_lr
     assert lr_at(5700, red) == lr_at(9699, red) == red.train.render_lr
     assert lr_at(9700, red) == lr_at(11699, red) == red.train.dynamics_lr
@@ -249,6 +255,64 @@ def test_schedules_and_batch_order():
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
     assert stream[:10] != stream[10:]
+
+
+def test_the_paper_trains_in_one_phase_and_reduced_in_seven():
+    paper = get_preset("paper")
+    (main,) = phases(paper)                                   # Table 2: everything jointly
+    assert (main.name, main.start, main.steps, main.loss) == ("main", 0, paper.train.main_steps(), "slate")
+    assert (main.lr, main.warmup, main.decay, main.dvae_lr) == (2e-4, 30_000, "none", 3e-4)
+    assert main.trains == SLATE_PARTS and main.augment == "none" and main.position_prior == 0.0
+    red = get_preset("reduced")
+    run = phases(red)
+    assert [p.name for p in run] == ["dvae_warmup", "main", "polish", "dynamics", "render_masks", "render", "refit"]
+    assert [p.loss for p in run] == ["dvae", "slate", "slate", "dynamics", "render_masks", "render", "dynamics"]
+    assert run[0].start == 0 and run[-1].end == red.train.total_steps()
+    assert all(a.end == b.start for a, b in zip(run, run[1:]))
+    assert run[0].lr == 0.0 and run[0].trains == ("dvae",)    # the dVAE alone ...
+    assert run[2].dvae_lr == 0.0 and "dvae" not in run[2].trains   # ... and frozen from the polish on
+    assert [p.position_prior for p in run] == [0.0] * 4 + [red.slots.position_prior] * 3
+    # SLATE_PARTS and the renderer are every part of the model
+    assert {k.split(".")[0] for k in DSlate(red).state_dict()} == set(SLATE_PARTS) | {"renderer"}
+    with pytest.raises(ValueError, match=r"train.dvae_warmup_steps \(5\) are the schedule's first steps and "
+                                         r"cannot exceed its 4"):
+        ci(dvae_warmup_steps=5).validate()
+
+
+def test_each_phase_moves_only_the_parts_it_trains(buffer, tmp_path):
+    from ncs_lite.utils import seed_everything
+
+    cfg = ci()
+    seed_everything(cfg.train.seed)
+    before = DSlate(cfg).state_dict()                          # the run's initialisation
+    out = tmp_path / "m.pt"
+    for i, phase in enumerate(phases(cfg)):                    # resumed at every phase's start
+        after = torch.load(train(cfg, buffer, out, resume=i > 0, max_steps=phase.end), weights_only=True)
+        changed = {k.split(".")[0] for k in before if not torch.equal(before[k], after["model"][k])}
+        assert changed and changed <= set(phase.trains), (phase.name, changed)
+        before = after["model"]
+    with pytest.raises(ValueError, match=r"max_steps must be in 1..12 \(the last step of the config's phases\), "
+                                         r"got 13"):
+        train(cfg, buffer, tmp_path / "long.pt", max_steps=13)
+
+
+def test_bench_times_the_trainers_own_step(monkeypatch):
+    from ncs_lite import training
+    from ncs_lite.bench import train_step as bench
+
+    steps = []
+
+    def spy(model, opt, phase, *args, **kwargs):
+        steps.append(phase.name)
+        return training.train_step(model, opt, phase, *args, **kwargs)
+
+    monkeypatch.setattr(bench, "train_step", spy)
+    cfg, cpu = get_preset("ci"), torch.device("cpu")
+    model = DSlate(cfg)
+    frames, actions = bench._batch(cfg, 2, cpu)
+    before = model.slot_attn.mu.detach().clone()
+    assert bench.step_flops(model, training.build_optimizer(model, cfg), frames, actions, cpu, "fp32") > 0
+    assert steps == ["main"] and not torch.equal(before, model.slot_attn.mu)   # a real step, the main phase's
 
 
 def test_cli_subcommand():

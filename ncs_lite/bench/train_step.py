@@ -3,9 +3,10 @@
     python -m ncs_lite bench train --out bench_train.json
 
 For the `reduced` and `paper` widths, in fp32 and in bf16 autocast, it measures frames per
-second and achieved FLOP/s of a full training step (forward, backward, Adam update) on
-synthetic videos, and the peak FLOP/s of a large square `torch.matmul` of the same dtype in
-the same run. The fraction of peak says how matmul-friendly the model's compute is. The
+second and achieved FLOP/s of the trainer's own step (`training.train_step`: forward,
+backward, gradient clipping, Adam update, as in the main phase) on synthetic videos
+(without colour augmentation), and the peak FLOP/s of a large square `torch.matmul` of the
+same dtype in the same run. The fraction of peak says how matmul-friendly the model's compute is. The
 `paper`-width bf16 step is also measured with the forward under `torch.compile` (what
 `train --compile` runs), after its compilation.
 
@@ -27,7 +28,7 @@ from . import cpu_name
 from ..config import get_preset
 from ..models.dslate import DSlate
 from ..inference import resolve_device
-from ..training import autocast, build_optimizer
+from ..training import build_optimizer, phases, train_step
 from ..utils import package_versions, progress
 
 __all__ = ["run", "matmul_peak", "step_flops"]
@@ -80,13 +81,11 @@ def _batch(cfg, videos: int, device):
     return frames, actions
 
 
-def _step(model, opt, frames, actions, device, precision, clip, forward=None):
-    with autocast(device, precision):
-        loss = (model if forward is None else forward)(frames, actions, 1.0)["loss"]
-    opt.zero_grad(set_to_none=True)
-    loss.backward()
-    torch.nn.utils.clip_grad_norm_(model.parameters(), clip, norm_type=float("inf"))
-    opt.step()
+def _step(model, opt, frames, actions, device, precision, forward=None):
+    """The trainer's own step (`training.train_step`) at the first step of the config's main
+    phase, where every part trains on the SLATE loss."""
+    main = next(p for p in phases(model.cfg) if p.loss == "slate")
+    train_step(model, opt, main, 0, frames, actions, 1.0, precision, forward=forward)
     if device.type == "cuda":
         torch.cuda.synchronize()
 
@@ -94,7 +93,7 @@ def _step(model, opt, frames, actions, device, precision, clip, forward=None):
 def step_flops(model, opt, frames, actions, device, precision) -> int:
     """FLOPs of one training step (forward + backward), counted as described above."""
     with FlopCounterMode(display=False, custom_mapping=_custom_flops()) as fc:
-        _step(model, opt, frames, actions, device, precision, 1.0)
+        _step(model, opt, frames, actions, device, precision)
     return int(fc.get_total_flops())
 
 
@@ -120,12 +119,12 @@ def run(presets=("reduced", "paper"), videos: dict | None = None, repeats: int =
         frames, actions = _batch(cfg, nv, device)
         forward = torch.compile(model) if compiled else model
         for _ in range(2 if compiled else 1):                              # warm-up (+ compilation)
-            _step(model, opt, frames, actions, device, precision, 1.0, forward)
+            _step(model, opt, frames, actions, device, precision, forward)
         flops = step_flops(model, opt, frames, actions, device, precision)  # eager: same FLOPs
         times = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            _step(model, opt, frames, actions, device, precision, 1.0, forward)
+            _step(model, opt, frames, actions, device, precision, forward)
             times.append(time.perf_counter() - t0)
         t = statistics.median(times)
         n_frames = nv * cfg.train.window
@@ -139,13 +138,3 @@ def run(presets=("reduced", "paper"), videos: dict | None = None, repeats: int =
             "threads": torch.get_num_threads(), "versions": package_versions(),
             "matmul_peak_flops_per_second": peaks, "steps": rows}
 
-
-def format_table(result: dict) -> str:
-    """The results as an aligned text table."""
-    lines = [f"{'preset':8} {'prec':12} {'frames/s':>9} {'GFLOP/s':>9} {'peak GFLOP/s':>13} {'of peak':>8}"]
-    for r in result["steps"]:
-        prec = r["precision"] + (" compiled" if r.get("compiled") else "")
-        lines.append(f"{r['preset']:8} {prec:12} {r['frames_per_second']:9.1f} "
-                     f"{r['flops_per_second'] / 1e9:9.1f} {r['matmul_peak_flops_per_second'] / 1e9:13.1f} "
-                     f"{100 * r['fraction_of_peak']:7.1f}%")
-    return "\n".join(lines)

@@ -19,7 +19,7 @@ class MultiHeadAttention(nn.Module):
 
     def __init__(self, dim: int, heads: int, dropout: float = 0.0, kv_dim: int | None = None):
         super().__init__()
-        self.heads, self.dropout = heads, dropout
+        self.heads = heads
         self.self_attn = kv_dim is None
         if self.self_attn:
             self.qkv = nn.Linear(dim, 3 * dim, bias=False)
