@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from ..utils import atomic_torch_save, file_kind, load_tensor_file
-from .kmeans import assign, kmeans, pairwise_distances
+from .kmeans import KMeansResult, assign, kmeans, pairwise_distances
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -84,6 +84,25 @@ def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
         raise ValueError("states_t and states_t1 must both have shape (M, K, D), got "
                          f"{tuple(states_t.shape)} and {tuple(states_t1.shape)}")
     return isolate_distance(states_t, states_t1).argmax(dim=1)
+
+
+def cluster(states: torch.Tensor, clusters: int, state: str = "mask", *, seed: int = 0,
+            max_iter: int = 100) -> KMeansResult:
+    """The graph's nodes: K-means of isolated entity states (M, D) into `clusters` centroids
+    (N, D), under Table 3's cluster metric for `state` states (IoU for masks, squared Euclidean
+    for slot states), k-means++ seeded by `seed` (`kmeans`)."""
+    if state not in METRICS_BY_STATE:
+        raise ValueError(f"state must be one of {sorted(METRICS_BY_STATE)}, got {state!r}")
+    return kmeans(states, clusters, METRICS_BY_STATE[state]["cluster"], seed=seed, max_iter=max_iter)
+
+
+def bind(states: torch.Tensor, centroids: torch.Tensor, metric: str) -> torch.Tensor:
+    """The node of each state: (..., D) states -> (...) int64 index of the nearest centroid
+    (N, D) under `metric`, Table 3's bind metric (cosine for masks, squared Euclidean for slot
+    states; ties go to the lowest index, `assign`)."""
+    flat = states.reshape(-1, states.shape[-1]).float()
+    labels, _ = assign(flat, centroids, metric)
+    return labels.reshape(states.shape[:-1])
 
 
 GRAPH_KIND = "ncs-graph"
@@ -224,10 +243,8 @@ class TransitionGraph:
         check_features(self, features, "graph")
 
     def bind(self, states: torch.Tensor) -> torch.Tensor:
-        """Node of each state (..., D) -> (...) int64, nearest centroid under `bind_metric`."""
-        flat = states.reshape(-1, states.shape[-1]).float()
-        labels, _ = assign(flat, self.centroids, self.bind_metric)
-        return labels.reshape(states.shape[:-1])
+        """Node of each state (..., D) -> (...) int64: `bind` to these centroids under `bind_metric`."""
+        return bind(states, self.centroids, self.bind_metric)
 
     def moved_subspace(self, variance: float = 1.0) -> torch.Tensor | None:
         """(D, P) orthonormal directions along which the examples' states move: the fewest
@@ -442,11 +459,11 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     moved = isolate(states_t, states_t1)                               # (M,)
     rows = torch.arange(len(moved))
     before, after = states_t[rows, moved].float(), states_t1[rows, moved].float()  # (M, D)
-    result = kmeans(torch.cat([before, after]), clusters, metrics["cluster"], seed=seed,
-                    max_iter=max_iter)
+    result = cluster(torch.cat([before, after]), clusters, state, seed=seed, max_iter=max_iter)
     graph = TransitionGraph(result.centroids, metrics["bind"])
     examples = (before, after) if edge_action in EXAMPLE_ACTIONS else (None, None)
-    graph.add(graph.bind(before), graph.bind(after), actions, *examples)
+    graph.add(bind(before, graph.centroids, graph.bind_metric), bind(after, graph.centroids, graph.bind_metric),
+              actions, *examples)
     graph.info = {"transitions": int(len(moved)), "clusters": int(clusters), "state": state,
                   "edge_action": edge_action,
                   "metrics": metrics, "seed": seed, "kmeans_inertia": result.inertia,
@@ -476,5 +493,5 @@ def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
     return graph
 
 
-__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
-           "isolate", "isolate_distance"]
+__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
+           "graph_from_buffer", "isolate", "isolate_distance"]
