@@ -8,7 +8,7 @@ from ncs_lite.evaluation import (TaskSet, agent_factory, evaluate, summarize, ta
                                  wilson_interval, write_csv)
 from ncs_lite.ncs.graph import TransitionGraph, build_graph, graph_from_buffer, isolate
 from ncs_lite.ncs.perception import OraclePerception, pool_masks
-from ncs_lite.ncs.policy import align, constraint_distances
+from ncs_lite.ncs.policy import align, constraint_distances, type_distances
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +70,9 @@ def test_build_graph_checks_actions():
 def test_align_matches_types_despite_permutation():
     types = torch.eye(5)[:4] * 3
     perm = torch.tensor([2, 0, 3, 1])
-    g, c = align(types, types[perm] + 0.01)
+    g, c, cost = align(types, types[perm] + 0.01)
     np.testing.assert_array_equal(c[np.argsort(g)], perm.numpy())
+    assert torch.equal(cost, type_distances(types, types[perm] + 0.01))      # what it matched on, (G, C)
 
 
 def test_mutual_align_drops_entities_without_a_counterpart():
@@ -79,34 +80,56 @@ def test_mutual_align_drops_entities_without_a_counterpart():
     # cube 1, which the plain matching pairs with a leftover goal slot (4, far from every type)
     current = torch.tensor([[0.0, 0], [5, 0], [0, 5], [9, 9]])
     goal = torch.tensor([[0.1, 0], [0, 5.1], [9, 9.1], [-20, -20]])
-    g, c = align(current, goal)
+    g, c, _ = align(current, goal)
     assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3), (3, 1)]
     for rule in ("mutual", "either", "near"):
-        g, c = align(current, goal, rule)
+        g, c, _ = align(current, goal, rule)
         assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
     # a spare goal slot that copies part of cube 0 is cube 0's nearest type: "mutual" drops
     # the cube's pair, "either" keeps it (the cube is still its own goal slot's nearest)
     current = torch.tensor([[0.0, 0], [5, 0], [1, 0]])        # cube 0, cube 1, a spare slot
     goal = torch.tensor([[0.0, 0.2], [5, 0.1], [0.1, 0]])       # cube 0, cube 1, a spare slot
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")))) == [(0, 0), (1, 1), (2, 2)]
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")))) == [(1, 1)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")[:2]))) == [(0, 0), (1, 1), (2, 2)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")[:2]))) == [(1, 1)]
     # "near" keeps the two cubes and drops the spare slots' pair (far apart for one entity)
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 1)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")[:2]))) == [(0, 0), (1, 1)]
     # a partial goal: cube 1 is unconstrained and its nearest goal type is a spare slot far from
     # it; "either" pairs them (cube 1 would be moved), "near" does not
     current = torch.tensor([[0.0, 0], [5, 0], [0, 9]])         # cube 0, cube 1, floor
     goal = torch.tensor([[0.1, 0], [0, 9.1], [6, 4]])           # cube 0, floor, a spare slot
-    assert (2, 1) in zip(*(a.tolist() for a in align(current, goal, "either")))
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 2)]
+    assert (2, 1) in zip(*(a.tolist() for a in align(current, goal, "either")[:2]))
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")[:2]))) == [(0, 0), (1, 2)]
     same = torch.zeros(4, 3)                                    # identical types stay paired
-    assert [a.tolist() for a in align(same, same[:2], "near")] == [[0, 1], [0, 1]]
+    assert [a.tolist() for a in align(same, same[:2], "near")[:2]] == [[0, 1], [0, 1]]
     types = torch.eye(5)[:4] * 3                               # counterparts all round: no change
     perm = torch.tensor([2, 0, 3, 1])
     for rule in ("mutual", "either", "near"):
-        for a, b in zip(align(types, types[perm] + 0.01, "hungarian"), align(types, types[perm] + 0.01, rule)):
+        for a, b in zip(align(types, types[perm] + 0.01, "hungarian")[:2], align(types, types[perm] + 0.01, rule)[:2]):
             np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', 'either', 'near', got 'best'"):
         align(types, types, "best")
+
+
+def test_select_constraint_samples_only_unsatisfied_pairs():
+    """select-constraint: a pair whose two states bind to one node is satisfied (unless
+    `same_node` is off, as for edge actions read from states); the pair is drawn in proportion
+    to the rest of the distances, and with none left nothing is drawn from the generator."""
+    from ncs_lite.ncs.policy import select_constraint
+
+    graph = TransitionGraph(torch.eye(4), "cosine")                 # node i = unit vector e_i
+    current = torch.eye(4)[[0, 1, 2]] + torch.tensor([[0.0, 0, 0, 0], [0, 0, 0.1, 0], [0, 0, 0, 0]])
+    goal = torch.eye(4)[[0, 3, 2]] + torch.tensor([[0.0, 0.05, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]])
+    rng = np.random.default_rng(0)
+    chosen = select_constraint(current, goal, graph, rng)
+    assert chosen.same_node.tolist() == [True, False, True] and chosen.raw_distances[0] > 0
+    assert chosen.probabilities.tolist() == [0.0, 1.0, 0.0] and (chosen.selected, chosen.src, chosen.dst) == (1, 1, 3)
+    loose = select_constraint(current, goal, graph, rng, same_node=False)
+    assert not loose.same_node.any() and loose.probabilities[0] > 0
+    np.testing.assert_array_equal(loose.distances, loose.raw_distances)
+    before = rng.bit_generator.state
+    done = select_constraint(current[[0, 2]], goal[[0, 2]], graph, rng)
+    assert done.selected is None and done.src is None and not done.probabilities.any()
+    assert rng.bit_generator.state == before
 
 
 def test_constraint_distance_zero_when_satisfied():
