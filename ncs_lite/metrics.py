@@ -263,8 +263,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     """Slots of every frame of a buffer's videos, and which slot holds which object.
 
     Slots are inferred through each video (`infer_video`: slot k follows one object) with
-    one slot per object plus one for the floor, at least the model's trained K (as NCS's
-    perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
+    one slot per object plus one for the floor, at least the model's trained K (`scene_slots`,
+    as NCS's perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
     winning most of its true pixels (`slot_assignment`). Returns arrays:
       slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
       per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
@@ -273,10 +273,12 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
       all_positions (E, T, k, 2), all_colours (E, k), colour_names (one per id),
       background (E, T) the floor's slot.
     """
+    from .models.split import split
+    from .ncs.perception import scene_slots
+
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
     E, T, k = true.shape[:3]
-    cfg = getattr(model, "cfg", None)                 # stand-in models in tests declare no K
-    num_slots = max(cfg.slots.num_slots if cfg is not None else 0, k + 1)
+    num_slots = scene_slots(model, k)
     slots, masks = [], []
     for i in range(0, E, batch_size):
         r = model.infer_video(frames[i:i + batch_size], num_slots=num_slots, restarts=restarts, seed=seed)
@@ -285,8 +287,7 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)
     owner, background = slot_assignment(masks.flatten(0, 1), true.reshape(E * T, *true.shape[2:]))
     owner, background = owner.reshape(E, T, k), background.reshape(E, T)
-    Dz = model.type_dim
-    z, s = slots[..., :Dz].numpy(), slots[..., Dz:].numpy()
+    z, s = (half.numpy() for half in split(slots, model.type_dim))
     pos = np.asarray(buffer["positions"])[..., :2]                     # (E, T, k, 2)
     colour, names = _colour_ids(buffer["colors"])                      # (E, k)
     e_idx, t_idx, o_idx = np.nonzero(owner >= 0)
