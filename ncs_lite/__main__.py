@@ -30,19 +30,15 @@ def _bench(args):
 
 
 def _graph(args):
-    from .config import ncs_config, to_dict
-    from .data import manifest_hash
+    from .config import ncs_config
+    from .data import load_manifest
     from .inference import load_dslate
-    from .ncs.graph import build_graph
-    from .ncs.perception import buffer_transitions, graph_perception, slot_read
+    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, graph_from_buffer
     from .utils import check_file_env, check_out_file, provenance, relative_to_repo, sha256_file
 
     if (args.checkpoint is None) == (not args.oracle):
         raise ValueError("give exactly one of --checkpoint CKPT (learned NCS) or --oracle")
     check_out_file(args.out, "graph")
-    from .data import load_manifest
-    from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV
-
     env = load_manifest(args.data)["env"]["env"]          # Tables 3-4 give each env's defaults
     if args.clusters is not None and any(o.split("=", 1)[0].strip() == "ncs.clusters" for o in args.overrides):
         raise ValueError(f"give the number of nodes once: --clusters {args.clusters} or --set ncs.clusters=N, "
@@ -54,22 +50,13 @@ def _graph(args):
     if model is not None:
         check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
     made = provenance(args.out, args.allow_dirty)
-    perception = graph_perception(cfg, model)
-    states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
-    graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
-                        seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info
-    graph.info.update(env=env, data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
-                      checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
+    graph = graph_from_buffer(cfg, model, args.data)      # the buffer pass is cached
+    graph.info.update(checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
-                      oracle=args.oracle, perception_state=perception.state, ncs=to_dict(cfg),
-                      overrides=list(args.overrides), **slot_read(perception), **made)
+                      overrides=list(args.overrides), **made)
     graph.save(args.out)
     print(json.dumps({"out": args.out, "state": graph.state, "nodes": graph.num_nodes,
                       "edges": graph.num_edges, "coverage": graph.info.get("coverage")}))
-
-
-# NCSConfig fields that only building a graph reads (`graph`), never an agent acting on one
-GRAPH_BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
 
 
 def _evaluate(args):
@@ -79,7 +66,7 @@ def _evaluate(args):
     from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, check_graph_reading, evaluate,
                              summarize, write_csv)
     from .inference import load_dslate, shipped_asset
-    from .ncs.graph import TransitionGraph
+    from .ncs.graph import BUILD_FIELDS, TransitionGraph
     from .utils import check_file_env, check_out_file, provenance, recorded_env
 
     if args.out:
@@ -92,10 +79,10 @@ def _evaluate(args):
         if path is not None and args.method in NEEDS and need not in needs:
             reads = " and ".join(f"a {NEED_NAMES[n]}" for n in needs) or "no file"
             raise ValueError(f"method {args.method!r} reads no {NEED_NAMES[need]}, got {path}; it reads {reads}")
-    built = [o for o in sections["ncs"] if parse_override(o)[0] in GRAPH_BUILD_FIELDS]
+    built = [o for o in sections["ncs"] if parse_override(o)[0] in BUILD_FIELDS]
     if built:                                   # fields of how a graph is built, which acting never reads
         raise ValueError(f"--set {built[0]}: evaluate reads a built graph (its nodes, k-means seed and buffer "
-                         f"pass are fixed); set {', '.join(GRAPH_BUILD_FIELDS)} when building it "
+                         f"pass are fixed); set {', '.join(BUILD_FIELDS)} when building it "
                          "(python -m ncs_lite graph)")
     if sections["mpc"] and args.method != "mpc":
         raise ValueError(f"--set {sections['mpc'][0]}: mpc fields set MPC's planner; method {args.method!r} has none")

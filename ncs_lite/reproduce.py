@@ -165,7 +165,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import load_dslate
     from .metrics import factorization_scores
-    from .ncs.perception import DSlatePerception, acting_restarts
+    from .ncs.perception import acting_restarts
     from .training import read_checkpoint, train
 
     from .comparison import CI_CLUSTERS, graph_episodes_of
@@ -233,10 +233,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
             graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
                          "code": source_hash(*STAGE_CODE)}
-            graph = _graph_stage(graph_path, graph_key, lambda: DSlatePerception(
-                model, iterations=ncs.iterations, restarts=ncs.graph_restarts, state=state,
-                slot_position=ncs.slot_position), cached_buffer(graph_episodes, env=env, seed=0), ncs, env,
-                f"seed {seed}: graph on {state} states")
+            graph = _graph_stage(graph_path, graph_key, ncs, model, cached_buffer(graph_episodes, env=env, seed=0),
+                                 f"seed {seed}: graph on {state} states")
             row[f"graph_edges{suffix}"] = graph.num_edges
             row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
             for k in objects:
@@ -267,7 +265,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     shipped = min(rows, key=lambda r: r["heldout_error"])["seed"]
     meta = {"env": env, "preset": preset, "overrides": list(overrides), "seeds": list(seeds),
             "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
-            "objects": list(objects), "images": images, "clusters": clusters,
+            "objects": list(objects), "images": images, "clusters": base.clusters,
             "ncs": to_dict(base), "ncs_overrides": ncs_overrides, "summary": summary,
             "shipped_seed": shipped, "shipped_rule": "the lowest held-out reconstruction error (heldout_error)"}
     write_table(f"seeds_{preset}" if block else f"seeds_{env.split('-')[0]}_{preset}", rows, meta, out_dir,
@@ -293,21 +291,17 @@ def heldout_reconstruction_error(model, env: str, images: int = 200) -> float:
     return float(np.concatenate(errors).mean())
 
 
-def _graph_stage(path: Path, key: dict, make_perception, data, ncs, env: str, what: str):
-    """The graph at `path` when it was built from `key`; else built from the buffer at `data`
-    as `make_perception()` reads it (the same cached buffer pass and build as `python -m
-    ncs_lite graph`), and saved there with its key."""
-    from .ncs.graph import TransitionGraph, build_graph
-    from .ncs.perception import buffer_transitions, slot_read
+def _graph_stage(path: Path, key: dict, ncs, model, data, what: str):
+    """The graph at `path` when it was built from `key`; else the graph of the buffer at `data`
+    as `model` (None: ground truth) reads it with `ncs` (`graph_from_buffer`, the path of
+    `python -m ncs_lite graph`), saved there with its key."""
+    from .ncs.graph import TransitionGraph, graph_from_buffer
 
     graph = TransitionGraph.load(path) if path.exists() else None
     if graph is None or graph.info.get("key") != key:
         print(f"{what}", flush=True)
-        perception = make_perception()
-        states_t, states_t1, actions, moved = buffer_transitions(perception, data)
-        graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=ncs.state, seed=ncs.seed,
-                            true_entity=moved, edge_action=ncs.edge_action)
-        graph.info.update(key=key, state=ncs.state, env=env, **slot_read(perception))
+        graph = graph_from_buffer(ncs, model, data)
+        graph.info.update(key=key)
         graph.save(path)
     return graph
 
@@ -319,12 +313,11 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
 
     from .data import cached_buffer
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
-    from .ncs.perception import ORACLE_STATES, OraclePerception
 
     oracle_ncs = replace(ncs, slot_position=None)
     key = {"episodes": graph_episodes, "ncs": asdict(oracle_ncs), "code": source_hash(*STAGE_CODE)}
-    graph = _graph_stage(runs / "graph-oracle.pt", key, lambda: OraclePerception(ORACLE_STATES[ncs.state]),
-                         cached_buffer(graph_episodes, env=env, seed=0), ncs, env, "the position oracle's graph")
+    graph = _graph_stage(runs / "graph-oracle.pt", key, ncs, None, cached_buffer(graph_episodes, env=env, seed=0),
+                         "the position oracle's graph")
     row = {}
     for k in objects:
         tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
@@ -369,29 +362,31 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
 
 # ---------------------------------------------------------------------- clusters (Fig. 9, left)
 def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7), episodes: int = 100,
-                   data=None, out_dir=None, allow_dirty: bool = False) -> dict:
+                   data=None, overrides=(), out_dir=None, allow_dirty: bool = False) -> dict:
     """NCS success against the number of nodes, on one checkpoint's states (default: the
-    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot
-    inference over the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
-    per point."""
+    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`), with the
+    `ncs.*` `overrides` (any field but the swept ncs.clusters) building the graphs and acting.
+    Slot inference over the buffer runs once (cached, `buffer_transitions`); k-means and the
+    evaluations once per point."""
+    from dataclasses import replace
+
     from .comparison import GRAPH_EPISODES
-    from .config import NCSConfig, to_dict
+    from .config import ncs_config, parse_override, to_dict
     from .data import cached_buffer, manifest_hash
     from .evaluation import TaskSet, agent_factory, evaluate, summarize
     from .inference import SHIPPED_CHECKPOINT, load_dslate
-    from .ncs.graph import build_graph
-    from .ncs.perception import DSlatePerception, buffer_transitions
+    from .ncs.graph import graph_from_buffer
 
+    swept = [o for o in overrides if parse_override(o)[0] == "ncs.clusters"]
+    if swept:
+        raise ValueError(f"--set {swept[0]}: the clusters table sweeps the number of nodes ({', '.join(map(str, clusters))})")
+    base = ncs_config(overrides)
     checkpoint = Path(checkpoint or SHIPPED_CHECKPOINT)
     model = load_dslate(checkpoint)
     data = Path(data) if data else cached_buffer(GRAPH_EPISODES["reduced"], num_objects=4, seed=0)
-    base = NCSConfig()
-    perception = DSlatePerception(model, iterations=base.iterations, restarts=base.graph_restarts)
-    states_t, states_t1, actions, true_slot = buffer_transitions(perception, data)
     rows = []
     for n in progress(clusters, desc="clusters"):
-        graph = build_graph(states_t, states_t1, actions, clusters=n, seed=base.seed,
-                            true_entity=true_slot)
+        graph = graph_from_buffer(replace(base, clusters=n), model, data)
         row = {"clusters": n, "edges": graph.num_edges}
         for k in objects:
             tasks = TaskSet(num_objects=k, episodes=episodes, seed=0)
@@ -404,7 +399,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
         print(json.dumps(row), flush=True)
     meta = {"checkpoint": relative_to_repo(checkpoint), "checkpoint_sha256": sha256_file(checkpoint),
             "buffer": relative_to_repo(data), "manifest_sha256": manifest_hash(data),
-            "episodes": episodes, "ncs": to_dict(base)}
+            "episodes": episodes, "ncs": to_dict(base), **({"ncs_overrides": list(overrides)} if overrides else {})}
     write_table("clusters", rows, meta, out_dir, allow_dirty)
     return {"rows": rows}
 
@@ -424,11 +419,12 @@ def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced")
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
-                    out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange") -> dict:
+                    out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange", overrides=()) -> dict:
     """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv):
     one row per method, goal kind and object count (success, 95% Wilson interval, the mean share
-    of constraints satisfied with its interval, random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
-    the per-episode rows go beside it (`_episodes.csv`)."""
+    of constraints satisfied with its interval, random-action share, mean steps), from the assets of
+    `comparison_assets(preset, env=env, overrides=overrides)` (`ncs.*` overrides: how NCS builds its
+    graphs and acts); the per-episode rows go beside it (`_episodes.csv`)."""
     import time
 
     from .comparison import EPISODES, MPC_EPISODES, comparison_assets, run_comparison
@@ -439,7 +435,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
     provenance(_table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
-    assets = comparison_assets(preset, env=env)
+    assets = comparison_assets(preset, env=env, overrides=overrides)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
     keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "constraints",
             "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
@@ -449,7 +445,8 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     meta = {"env": env, "preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
             "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
                        if Path(v).is_file()},
-            "minutes": round((time.perf_counter() - start) / 60, 1)}
+            "minutes": round((time.perf_counter() - start) / 60, 1),
+            **({"ncs_overrides": list(overrides)} if overrides else {})}
     write_table(name, table, meta, out_dir, allow_dirty)
     return {"rows": table, "minutes": meta["minutes"]}
 
@@ -545,10 +542,10 @@ SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 # never silently ignored. FLAG_DEFAULTS: the parser's defaults, i.e. "not given"
 TABLE_FLAGS = {
     "seeds": ("preset", "seeds", "runs", "overrides", "episodes", "env", "objects"),
-    "clusters": ("checkpoint", "episodes"),
-    "baselines": ("preset", "episodes", "mpc_episodes", "env"),
+    "clusters": ("checkpoint", "episodes", "overrides"),
+    "baselines": ("preset", "episodes", "mpc_episodes", "env", "overrides"),
     "robogym": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
-    "fig9": ("preset", "executor", "sweep_folder"),
+    "fig9": ("preset", "executor", "sweep_folder", "overrides"),
     "fig10": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
     "fig11": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
 }
@@ -606,18 +603,18 @@ def run_table(name: str, args) -> dict:
         return seeds_table(args.preset, args.seeds, args.runs, args.overrides, args.episodes or 100,
                            objects=args.objects, env=args.env, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "clusters":
-        return clusters_table(args.checkpoint, episodes=args.episodes or 100, out_dir=args.out_dir,
-                              allow_dirty=args.allow_dirty)
+        return clusters_table(args.checkpoint, episodes=args.episodes or 100, overrides=args.overrides,
+                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "baselines":
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
-                               allow_dirty=args.allow_dirty, env=args.env)
+                               allow_dirty=args.allow_dirty, env=args.env, overrides=args.overrides)
     if name == "robogym":
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
                              checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "fig9":
         return fig9_table(args.preset, executor=args.executor, folder=args.sweep_folder, out_dir=args.out_dir,
-                          allow_dirty=args.allow_dirty)
+                          allow_dirty=args.allow_dirty, overrides=args.overrides)
     if name in STRESS_TABLES:
         return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
                             mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 import torch
 
+from ncs_lite.config import NCSConfig
 from ncs_lite.data import collect, load_buffer
 from ncs_lite.evaluation import (TaskSet, agent_factory, evaluate, summarize, task_seed,
                                  wilson_interval, write_csv)
@@ -12,16 +13,21 @@ from ncs_lite.ncs.policy import align, constraint_distances, type_distances
 
 
 @pytest.fixture(scope="module")
-def buffer(tmp_path_factory):
+def buffer_dir(tmp_path_factory):
     path = tmp_path_factory.mktemp("buf")
     collect(path, episodes=600, seed=0)   # 2400 moves: all 240 cell pairs seen
-    return load_buffer(path)
+    return path
 
 
 @pytest.fixture(scope="module")
-def oracle_graph(buffer):
+def buffer(buffer_dir):
+    return load_buffer(buffer_dir)
+
+
+@pytest.fixture(scope="module")
+def oracle_graph(buffer_dir):
     with pytest.warns(RuntimeWarning, match="empty cluster"):   # 16 cells, 30 clusters
-        return graph_from_buffer(buffer, OraclePerception(), clusters=30)
+        return graph_from_buffer(NCSConfig(clusters=30), None, buffer_dir)
 
 
 def test_isolate_finds_the_changed_entity():
@@ -59,6 +65,26 @@ def test_graph_save_load_round_trip(oracle_graph, tmp_path):
         TransitionGraph.load(tmp_path / "other.pt")
     with pytest.raises(FileNotFoundError, match="python -m ncs_lite graph"):
         TransitionGraph.load(tmp_path / "missing.pt")
+
+
+def test_the_papers_steps_by_name_make_the_graph(buffer):
+    """`from ncs_lite.ncs import ...` the six steps; build_graph is isolate, cluster and bind."""
+    from ncs_lite.ncs import align, bind, cluster, select_constraint, split  # noqa: F401
+
+    st, st1, actions, _ = OraclePerception().transitions(buffer)
+    st, st1, actions = st[:200], st1[:200], actions[:200]
+    graph = build_graph(st, st1, actions, clusters=8)
+    moved = isolate(st, st1)
+    rows = torch.arange(len(moved))
+    before, after = st[rows, moved], st1[rows, moved]                    # (M, D) each
+    nodes = cluster(torch.cat([before, after]), 8, "mask")
+    assert torch.equal(graph.centroids, nodes.centroids) and graph.bind_metric == "cosine"
+    src, dst = bind(before, nodes.centroids, "cosine"), bind(after, nodes.centroids, "cosine")
+    assert set(graph.edges) == {(s, d) for s, d in zip(src.tolist(), dst.tolist()) if s != d}
+    assert torch.equal(graph.bind(before), src)
+    slots = torch.rand(2, 3, 10)
+    types, states = split(slots, 4)                                       # [type z ; state s]
+    assert types.shape == (2, 3, 4) and torch.equal(torch.cat([types, states], -1), slots)
 
 
 def test_build_graph_checks_actions():
@@ -364,9 +390,9 @@ def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monke
 
 # ------------------------------------------------------------------ slot states (Table 3, s)
 @pytest.fixture(scope="module")
-def position_graph(buffer):
+def position_graph(buffer_dir):
     """The oracle's graph on cube positions, the ground-truth stand-in for slot states."""
-    return graph_from_buffer(buffer, OraclePerception("position"), clusters=16)
+    return graph_from_buffer(NCSConfig(clusters=16, state="slot"), None, buffer_dir)
 
 
 def test_ncs_config_state_error():
@@ -462,8 +488,6 @@ def test_oracle_position_state(buffer, position_graph):
     assert isolate_distance(p[:2], q[:2]) < 1e-6 < isolate_distance(p, q)
     with pytest.raises(ValueError, match="oracle state must be one of \\['mask', 'position'\\], got 'slot'"):
         OraclePerception("slot")
-    with pytest.raises(ValueError, match="does not match the perception's 'slot'"):
-        graph_from_buffer(buffer, perception, clusters=16, state="mask")
 
 
 def test_oracle_position_solves_tasks_random_does_not(position_graph):
@@ -652,8 +676,9 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     graph.info.update(perception_state="slot", oracle=False)
     with pytest.raises(ValueError, match="slot_position 'attention'; the agent would act with 'assigned'"):
         agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot"))
-    assert graph_from_buffer(buf, read, clusters=4).info["slot_position"] == "assigned"
-    assert "slot_position" not in graph_from_buffer(buf, OraclePerception("position"), clusters=4).info
+    assigned = NCSConfig(clusters=4, state="slot", iterations=2, graph_restarts=1, slot_position="assigned")
+    assert graph_from_buffer(assigned, model, tmp_path / "buf").info["slot_position"] == "assigned"
+    assert "slot_position" not in graph_from_buffer(assigned, None, tmp_path / "buf").info
     with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned' or None "
                                          r"\(the env's\), got 'hard'"):
         ncs_config(["ncs.slot_position=hard"])

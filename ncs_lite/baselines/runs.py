@@ -151,7 +151,7 @@ def _graph_nf(args) -> None:
     from ..data import load_manifest, manifest_hash
     from ..inference import load_dslate
     from ..ncs.graph import TransitionGraph
-    from ..ncs.perception import ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, slot_read
+    from ..ncs.perception import buffer_transitions, graph_perception, slot_read
     from ..utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo
     from .nf import set_graph_from_transitions
 
@@ -171,9 +171,7 @@ def _graph_nf(args) -> None:
     cfg = ncs_config(args.overrides, clusters=bind.num_nodes if bind else args.clusters,
                      state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)
-    perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(model, iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
+    perception = graph_perception(cfg, model)                    # as `graph` reads the buffer
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
         graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)

@@ -1,6 +1,8 @@
 """The NCS transition graph (Section 4.1, Appendix A.2, Tables 3-4): isolate, cluster, bind.
 
-From a buffer of transitions (entity states before and after, and the action taken):
+From a buffer of transitions (entity states before and after, and the action taken), each step
+a function of this module (`build_graph` runs the three; `graph_from_buffer`, the one path from
+a buffer to a graph, reads the buffer first):
 
 1. **isolate**: the moved entity of a transition is argmax_k d(s_t^k, s_{t+1}^k), d the
    cosine distance (Table 3). Every other entity is assumed untouched.
@@ -44,14 +46,15 @@ Shapes: M transitions, K entities per frame, D state features, N nodes.
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..utils import atomic_torch_save, file_kind, load_tensor_file
+from ..utils import atomic_torch_save, file_kind, load_tensor_file, relative_to_repo
 from .kmeans import KMeansResult, assign, kmeans, pairwise_distances
+from .perception import buffer_transitions, graph_perception, slot_read
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -66,6 +69,8 @@ EDGE_ACTIONS = ("most_common", "nearest", "compose", "readout")
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
+# the NCSConfig fields that only building a graph reads, never an agent acting on one
+BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
 
 
 def isolate_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -473,25 +478,41 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     return graph
 
 
-def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
-                      state: str | None = None, edge_action: str = "most_common") -> TransitionGraph:
-    """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it.
+def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
+                      episodes: int | None = None) -> TransitionGraph:
+    """The transition graph of the buffer at `data` (a directory, `ncs_lite.data.collect`) as
+    NCS reads it, with every graph field of `ncs` (an `NCSConfig`): the one path from a buffer
+    to a graph, used by `python -m ncs_lite graph`, the tables and notebooks 05-06.
 
-    `state` (the Table 3 column) defaults to the perception's own (`graph_state`, "mask" for
-    a perception without one); a different one is refused, since its metrics would not fit."""
-    own = getattr(perception, "graph_state", None)
-    if state is None:
-        state = own or "mask"
-    elif own is not None and state != own:
-        raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
-    from .perception import slot_read
+    1. perception (`graph_perception`): `model`'s entities (`ncs.iterations`,
+       `ncs.graph_restarts`, `ncs.state`, `ncs.slot_position`, `num_slots` slots; None: the
+       model's K), or ground truth with `model` None;
+    2. the buffer's transitions as it reads them (`buffer_transitions`, cached), the first
+       `episodes` episodes of them (None: all);
+    3. `build_graph` with `ncs.clusters`, `ncs.state`, `ncs.seed` and `ncs.edge_action`
+       (None: the buffer's env's, EDGE_ACTION_BY_ENV).
+    The graph's info records the buffer, its env and manifest hash, the settings (`ncs`, with
+    the edge action resolved), how it read slot states (`slot_read`) and the episodes read.
+    """
+    from ..data import load_manifest, manifest_hash
 
-    states_t, states_t1, actions, true_entity = perception.transitions(buffer)
-    graph = build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
-                        true_entity=true_entity, edge_action=edge_action)
-    graph.info.update(slot_read(perception))
+    manifest = load_manifest(data)
+    env = manifest["env"]["env"]
+    ncs = replace(ncs, edge_action=ncs.edge_action or EDGE_ACTION_BY_ENV.get(env, "most_common"))
+    total = manifest["episodes"]
+    episodes = total if episodes is None else episodes
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= total:
+        raise ValueError(f"episodes must be an integer in [1, {total}] (the graph buffer's), got {episodes!r}")
+    perception = graph_perception(ncs, model, num_slots=num_slots)
+    states_t, states_t1, actions, moved = buffer_transitions(perception, data)
+    keep = episodes * (len(actions) // total)             # transitions in episode order (M = E (T - 1))
+    graph = build_graph(states_t[:keep], states_t1[:keep], actions[:keep], clusters=ncs.clusters, state=ncs.state,
+                        seed=ncs.seed, true_entity=moved[:keep], edge_action=ncs.edge_action)
+    graph.info.update(env=env, data=relative_to_repo(data), manifest_sha256=manifest_hash(data), episodes=episodes,
+                      ncs=asdict(ncs), oracle=model is None, perception_state=perception.state,
+                      **slot_read(perception), **({} if num_slots is None else {"read_slots": num_slots}))
     return graph
 
 
-__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
+__all__ = ["BUILD_FIELDS", "CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
            "graph_from_buffer", "isolate", "isolate_distance"]
