@@ -13,8 +13,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
-           "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
+__all__ = ["HELDOUT_SEED", "adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
+           "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "heldout_images", "segmentation_scores",
+           "ridge_probe", "matched_slots", "factorization_scores"]
+
+HELDOUT_SEED = 1000          # held-out buffers: the training buffer's seed + 1000
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -167,28 +170,53 @@ def lost_in_reconstruction(reconstructions, images, true_masks) -> np.ndarray:
     return out
 
 
-def evaluate_segmentation(model, directory, num_slots: int | None = None, iterations: int | None = None,
-                          episodes: int | None = None, batch_size: int = 100, seed: int = 0) -> dict:
-    """fg-ARI of a dSLATE's masks on every frame of a buffer (e.g. held-out episodes).
+def heldout_images(num_objects: int, images: int = 200, seed: int = 0, env: str = "block-rearrange") -> dict:
+    """The first `images` frames of the held-out buffer of `num_objects` objects (buffer seed
+    `seed` + HELDOUT_SEED, episodes never trained on): frames (n, H, W, 3), masks (n, k, H, W),
+    colors (n, k, 3) each frame's object colours, episode_colors (E, k, 3) the buffer's and
+    frames_per_episode (T)."""
+    from .data import cached_buffer, load_buffer
 
-    num_slots defaults to the model's K; for scenes with more objects than it was trained on,
-    pass one more than the number of objects (slot attention works for any K).
-    Returns {"fg_ari": mean, "std": ..., "sem": ..., "images": n, "num_slots": K, "iterations": it}.
-    """
-    from .data import load_buffer
+    data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
+                                     seed=seed + HELDOUT_SEED))
+    per_episode = data["frames"].shape[1]
+    return {"frames": data["frames"].reshape(-1, *data["frames"].shape[2:])[:images],
+            "masks": data["masks"].reshape(-1, *data["masks"].shape[2:])[:images],
+            "colors": np.repeat(data["colors"], per_episode, axis=0)[:images], "episode_colors": data["colors"],
+            "frames_per_episode": per_episode}
 
-    buf = load_buffer(directory)
-    frames = buf["frames"][:episodes].reshape(-1, *buf["frames"].shape[2:])     # (E*5, H, W, 3)
-    masks = buf["masks"][:episodes].reshape(-1, *buf["masks"].shape[2:])        # (E*5, k, H, W)
-    scores = []
-    for i in range(0, len(frames), batch_size):
-        out = model.infer(frames[i:i + batch_size], iterations=iterations, num_slots=num_slots, seed=seed)
-        scores.append(foreground_ari(out.masks, masks[i:i + batch_size]))
-    s = np.concatenate(scores)
-    s = s[~np.isnan(s)]
-    return {"fg_ari": float(s.mean()), "std": float(s.std()), "sem": float(s.std() / np.sqrt(len(s))),
-            "images": int(len(s)), "num_slots": int(num_slots or model.cfg.slots.num_slots),
-            "iterations": int(iterations or model.cfg.slots.eval_iterations)}
+
+def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
+                        seed: int = 0, env: str = "block-rearrange") -> dict:
+    """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
+    share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
+    sharing one, most first), on `heldout_images`, read with 7 iterations, `scene_slots` slots
+    (one per object plus one, at least the model's K) and `restarts` starts per image; with
+    `absorbed_cubes` (n, k), which cubes of each image are in the floor's slot
+    (`absorbed_by_background`). The segmentation measure of notebook 03 and the seeds table."""
+    from .ncs.perception import scene_slots
+
+    held = heldout_images(num_objects, images, seed, env)
+    frames, masks = held["frames"], held["masks"]
+    colours, names = _colour_ids(held["episode_colors"])                        # (E, k) per episode
+    colours = np.repeat(colours, held["frames_per_episode"], axis=0)[:images]    # ... per frame
+    slots = scene_slots(model, num_objects)
+    aris, owners, backgrounds = [], [], []
+    for i in range(0, len(frames), 50):
+        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
+        aris.append(foreground_ari(r.masks, masks[i:i + 50]))
+        owner, background = slot_assignment(r.masks, masks[i:i + 50])
+        owners.append(owner)
+        backgrounds.append(background)
+    owner, background = np.concatenate(owners), np.concatenate(backgrounds)
+    shared = shared_with_another(owner, background)
+    absorbed = in_floor_slot(owner, background)
+    pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
+    return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
+            "absorbed": float(absorbed.mean()), "shared": float(shared[owner >= 0].mean()),
+            "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
+            "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts),
+            "absorbed_cubes": absorbed.tolist()}
 
 
 # ---------------------------------------------------------------------- the type/state split

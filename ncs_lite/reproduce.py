@@ -24,14 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .metrics import HELDOUT_SEED, segmentation_scores
 from .utils import (REPO_DIR, atomic_write_json, atomic_write_text, cache_dir, figures_dir, progress, provenance,
                     relative_to_repo, sha256_file, source_hash)
 
-__all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
+__all__ = ["TABLES", "run_table", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
            "mean_sd", "add_subcommand"]
-
-HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
 
 
 def mean_sd(values) -> dict:
@@ -39,40 +38,6 @@ def mean_sd(values) -> dict:
     v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
     return {"mean": float(v.mean()) if len(v) else float("nan"),
             "sd": float(v.std(ddof=1)) if len(v) > 1 else float("nan"), "n": int(len(v))}
-
-
-def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
-                        seed: int = 0, env: str = "block-rearrange") -> dict:
-    """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
-    share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
-    sharing one, most first), as notebook 03 measures them: `images` frames of the
-    held-out buffer (seed + 1000), 7 iterations, one slot per object plus one (at least the
-    model's K), `restarts` starts per image."""
-    from .data import cached_buffer, load_buffer
-    from .metrics import (_colour_ids, foreground_ari, in_floor_slot, shared_slot_pairs, shared_with_another,
-                          slot_assignment)
-
-    data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
-                                     seed=seed + HELDOUT_SEED))
-    frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
-    masks = data["masks"].reshape(-1, *data["masks"].shape[2:])[:images]
-    colours, names = _colour_ids(data["colors"])                       # (E, k) per episode
-    colours = np.repeat(colours, data["frames"].shape[1], axis=0)[:images]   # ... per frame
-    slots = max(model.cfg.slots.num_slots, num_objects + 1)
-    aris, owners, backgrounds = [], [], []
-    for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
-        aris.append(foreground_ari(r.masks, masks[i:i + 50]))
-        owner, background = slot_assignment(r.masks, masks[i:i + 50])
-        owners.append(owner)
-        backgrounds.append(background)
-    owner, background = np.concatenate(owners), np.concatenate(backgrounds)
-    shared = shared_with_another(owner, background)
-    pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
-    return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
-            "absorbed": float(in_floor_slot(owner, background).mean()), "shared": float(shared[owner >= 0].mean()),
-            "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
-            "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
 
 
 # ---------------------------------------------------------------------- writing a table
