@@ -365,6 +365,38 @@ def test_cached_loads_what_it_stored_and_recomputes_on_a_new_key(tmp_path, monke
     assert digest({"a": 1, "b": 2}) == digest({"b": 2, "a": 1}) != digest({"a": 1, "b": 3})
 
 
+def test_load_or_train_loads_resumes_or_retrains(tmp_path, capsys):
+    """The one "load if present, else train" of obtain_dslate and obtain_policy: a finished,
+    fitting run is loaded; an unfinished one resumed; an unfit one, or any asked from scratch,
+    retrained; each decision but loading printed."""
+    from ncs_lite.cache import load_or_train
+
+    path, trained = tmp_path / "run.pt", []
+    state = {"step": 0, "fits": True}
+
+    def train(resume, force):
+        trained.append((resume, force))
+        path.write_text("run")
+        state["step"] = 10
+
+    def obtain(from_scratch=False):
+        return load_or_train(path, unfit=lambda p: None if state["fits"] else "another config",
+                             unfinished=lambda p: None if state["step"] >= 10 else f"at step {state['step']}",
+                             train=train, load=lambda p: p.read_text(), who="obtain", from_scratch=from_scratch)
+
+    assert obtain() == "run" and trained == [(False, False)]             # no run: trained
+    assert obtain() == "run" and len(trained) == 1 and capsys.readouterr().out == ""   # finished: loaded
+    state["step"] = 4
+    obtain()
+    assert trained[-1] == (True, False) and "obtain: resuming" in capsys.readouterr().out
+    state["fits"] = False
+    obtain()
+    assert trained[-1] == (False, True) and "from scratch: another config" in capsys.readouterr().out
+    state["fits"] = True
+    obtain(from_scratch=True)
+    assert trained[-1] == (False, True) and "train_from_scratch=True" in capsys.readouterr().out
+
+
 def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monkeypatch, capsys):
     from ncs_lite.cache import code_digest
     from ncs_lite.ncs.perception import buffer_transitions
