@@ -43,6 +43,7 @@ def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int 
     buffer, the reading, the settings and the code."""
     from .cache import buffer_digest, cached, code_digest
     from .config import NCSConfig
+    from .data import load_manifest
     from .ncs.graph import TransitionGraph, graph_from_buffer
     from .ncs.perception import graph_perception
     from .utils import REPO_DIR
@@ -57,8 +58,9 @@ def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int 
         return graph_from_buffer(ncs, model, data, num_slots=read_slots, episodes=episodes).state_dict()
 
     reading = graph_perception(ncs, model, num_slots=read_slots).describe()
-    sd = cached("graph", build, buffer=buffer_digest(data), reading=reading, ncs=asdict(ncs), episodes=episodes,
-                code=code_digest("ncs"))
+    every = load_manifest(data)["episodes"]               # all of them: one graph, one key, given or not
+    sd = cached("graph", build, buffer=buffer_digest(data), reading=reading, ncs=asdict(ncs),
+                episodes=every if episodes is None else episodes, code=code_digest("ncs"))
     return TransitionGraph.from_state_dict(sd)
 
 
