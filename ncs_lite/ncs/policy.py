@@ -137,10 +137,10 @@ def select_constraint(current_states: torch.Tensor, goal_states: torch.Tensor, g
     same = (src == dst) & same_node
     dist = np.where(same, 0.0, raw)           # same node: satisfied at the graph's resolution
     total = dist.sum()
-    probabilities = dist / total if total > 0 else np.zeros_like(dist)
     if total <= 0:
-        return Selection(raw, src, dst, same, dist, probabilities, None, None, None)
-    pick = int(rng.choice(len(dist), p=dist / total))
+        return Selection(raw, src, dst, same, dist, np.zeros_like(dist), None, None, None)
+    probabilities = dist / total
+    pick = int(rng.choice(len(dist), p=probabilities))
     return Selection(raw, src, dst, same, dist, probabilities, pick, int(src[pick]), int(dst[pick]))
 
 
