@@ -265,7 +265,7 @@ class DSlatePerception:
 
 
 def graph_perception(ncs, model=None, num_slots: int | None = None):
-    """How a graph reads its buffer's frames (`python -m ncs_lite graph`): `model`'s entities
+    """How a graph reads its buffer's frames (`graph.graph_from_buffer`): `model`'s entities
     with `ncs.graph_restarts` restarts, its iterations, state and slot position and
     `num_slots` slots (None: the model's K), or, with no model, ground truth (the oracle's
     stand-in for `ncs.state`, ORACLE_STATES)."""
