@@ -16,14 +16,13 @@ from .baselines import MPC_PRESETS, SetGraph
 from .baselines.nf import set_graph_from_transitions
 from .baselines.runs import load_trained_policy, policy_config, train_policy
 from .bench import run as run_benchmark
-from .config import apply_overrides, get_preset, ncs_config, parse_override, section_config, split_overrides, to_dict
+from .config import DSlateConfig, apply_overrides, get_preset, ncs_config, parse_override, section_config, split_overrides, to_dict
 from .data import collect, load_manifest, manifest_hash
 from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, check_graph_reading, evaluate,
                          summarize, write_csv)
 from .inference import load_dslate, read_checkpoint, shipped_asset
-from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-from .ncs.perception import (ORACLE_STATES, DSlatePerception, OraclePerception, buffer_transitions, graph_perception,
-                             slot_read)
+from .ncs.graph import BUILD_FIELDS, CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, graph_from_buffer
+from .ncs.perception import buffer_transitions, graph_perception, slot_read
 from .training import EXTENDABLE, train
 from .utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo, sha256_file
 
@@ -64,22 +63,13 @@ def _graph(args):
     if model is not None:
         check_file_env("--checkpoint", args.checkpoint, model.checkpoint_info.get("env"), env)
     made = provenance(args.out, args.allow_dirty)
-    perception = graph_perception(cfg, model)
-    states_t, states_t1, actions, moved = buffer_transitions(perception, args.data)   # cached
-    graph = build_graph(states_t, states_t1, actions, clusters=cfg.clusters, state=cfg.state,
-                        seed=cfg.seed, true_entity=moved, edge_action=cfg.edge_action)  # recorded in info
-    graph.info.update(env=env, data=relative_to_repo(args.data), manifest_sha256=manifest_hash(args.data),
-                      checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
+    graph = graph_from_buffer(cfg, model, args.data)      # the buffer pass is cached
+    graph.info.update(checkpoint=relative_to_repo(args.checkpoint) if args.checkpoint else None,
                       checkpoint_sha256=sha256_file(args.checkpoint) if args.checkpoint else None,
-                      oracle=args.oracle, perception_state=perception.state, ncs=to_dict(cfg),
-                      overrides=list(args.overrides), **slot_read(perception), **made)
+                      overrides=list(args.overrides), **made)
     graph.save(args.out)
     print(json.dumps({"out": args.out, "state": graph.state, "nodes": graph.num_nodes,
                       "edges": graph.num_edges, "coverage": graph.info.get("coverage")}))
-
-
-# NCSConfig fields that only building a graph reads (`graph`), never an agent acting on one
-GRAPH_BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
 
 
 def _evaluate(args):
@@ -93,10 +83,10 @@ def _evaluate(args):
         if path is not None and args.method in NEEDS and need not in needs:
             reads = " and ".join(f"a {NEED_NAMES[n]}" for n in needs) or "no file"
             raise ValueError(f"method {args.method!r} reads no {NEED_NAMES[need]}, got {path}; it reads {reads}")
-    built = [o for o in sections["ncs"] if parse_override(o)[0] in GRAPH_BUILD_FIELDS]
+    built = [o for o in sections["ncs"] if parse_override(o)[0] in BUILD_FIELDS]
     if built:                                   # fields of how a graph is built, which acting never reads
         raise ValueError(f"--set {built[0]}: evaluate reads a built graph (its nodes, k-means seed and buffer "
-                         f"pass are fixed); set {', '.join(GRAPH_BUILD_FIELDS)} when building it "
+                         f"pass are fixed); set {', '.join(BUILD_FIELDS)} when building it "
                          "(python -m ncs_lite graph)")
     if sections["mpc"] and args.method != "mpc":
         raise ValueError(f"--set {sections['mpc'][0]}: mpc fields set MPC's planner; method {args.method!r} has none")
@@ -190,9 +180,7 @@ def _graph_nf(args) -> None:
     cfg = ncs_config(args.overrides, clusters=bind.num_nodes if bind else args.clusters,
                      state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)
-    perception = (OraclePerception(ORACLE_STATES[cfg.state]) if args.oracle else
-                  DSlatePerception(model, iterations=cfg.iterations,
-                                   restarts=cfg.graph_restarts, state=cfg.state, slot_position=cfg.slot_position))
+    perception = graph_perception(cfg, model)                    # as `graph` reads the buffer
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
         graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)

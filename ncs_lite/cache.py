@@ -27,7 +27,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from .utils import atomic_path, cache_dir, source_hash
+from .utils import atomic_path, cache_dir, relative_to_repo, source_hash
 
 __all__ = ["cached", "cache_path", "digest", "buffer_digest", "code_digest"]
 
@@ -180,3 +180,32 @@ def cached(name: str, compute: Callable[[], Any], **key) -> Any:
         torch.save({"format": FORMAT, "key": text, "value": _encode(value)}, tmp)
     print(f"computed {name} in {time.perf_counter() - t0:.1f} s, saved to cache{why}")
     return value
+
+
+def load_or_train(path: Path, *, unfit: Callable[[Path], str | None], unfinished: Callable[[Path], str | None],
+                  train: Callable[..., Any], load: Callable[[Path], Any], who: str,
+                  from_scratch: bool = False) -> Any:
+    """The notebooks' "load the checkpoint if present, else train" for the training run at
+    `path` (a dSLATE, `inference.obtain_dslate`; BC or IQL, `baselines.runs.obtain_policy`):
+    a run there that fits (`unfit(path)` None, else why not) and is finished
+    (`unfinished(path)` None, else where it stopped) is loaded (`load(path)`); an unfinished one
+    is resumed (`train(resume=True, force=False)`); an unfit one, or any with `from_scratch`,
+    is trained again from scratch (`force=True`); no run, trained. Each decision but the first
+    is printed as `<who>: ...`."""
+    resume = force = False
+    if path.exists() and not from_scratch:
+        why = unfit(path)
+        if why is None:
+            left = unfinished(path)
+            if left is None:
+                return load(path)
+            resume = True
+            print(f"{who}: resuming {relative_to_repo(path)} {left}")
+        else:
+            force = True
+            print(f"{who}: retraining {relative_to_repo(path)} from scratch: {why}")
+    elif path.exists():
+        force = True
+        print(f"{who}: retraining {relative_to_repo(path)} from scratch (train_from_scratch=True)")
+    train(resume=resume, force=force)
+    return load(path)

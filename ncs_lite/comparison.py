@@ -16,14 +16,14 @@ from dataclasses import replace
 
 from .baselines import SetGraph, mpc_config, set_graph_from_transitions
 from .baselines.runs import load_trained_policy, obtain_policy
-from .config import NCSConfig, to_dict
+from .config import ncs_config, parse_override
 from .data import cached_buffer
-from .evaluation import TaskSet, evaluate_methods, learned_perception
+from .evaluation import TaskSet, evaluate_methods
 from .inference import load_dslate, shipped_asset
-from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-from .ncs.perception import buffer_transitions, graph_perception, slot_read
+from .ncs.graph import (BUILD_FIELDS, CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph,
+                        graph_from_buffer)
+from .ncs.perception import buffer_transitions, graph_perception, scene_slots
 from .training import obtain_dslate
-from .utils import relative_to_repo
 
 __all__ = ["COMPARED", "PAPER_NCS", "comparison_assets", "run_comparison"]
 
@@ -71,20 +71,27 @@ def graph_episodes_of(preset: str, env: str) -> int:
 CI_CLUSTERS = 8                                                 # ci's tiny buffer; else Table 4's
 
 
-def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-rearrange") -> dict:
+def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-rearrange", overrides=()) -> dict:
     """What every method runs from on `env`, and where each came from (`paths`); `ncs`, the
     NCS settings the graph agents read (Table 3's state of `env`, its graph's nodes and edge
-    actions).
+    actions, then the `ncs.*` `overrides`).
 
     `reduced`: the shipped assets (`inference.shipped_asset`, built by `make baseline-assets`
-    and `make robogym-baseline-assets`). Other presets: the dSLATE of `obtain_dslate`, the
-    policies of `obtain_policy`, and the graphs built here from the cached graph buffer."""
+    and `make robogym-baseline-assets`), so an override of how a graph is built
+    (`ncs.graph.BUILD_FIELDS`) is refused. Other presets: the dSLATE of `obtain_dslate`, the
+    policies of `obtain_policy`, and the graphs built here from the cached graph buffer
+    (`graph_from_buffer`, with `ncs`; k-means seeded by `seed`)."""
     if env not in STATE_BY_ENV:
         raise ValueError(f"env must be one of {sorted(STATE_BY_ENV)}, got {env!r}")
-    state = STATE_BY_ENV[env]
-    ncs = NCSConfig(state=state, clusters=CI_CLUSTERS if preset == "ci" else CLUSTERS_BY_ENV[env],
-                    edge_action=EDGE_ACTION_BY_ENV[env])
+    ncs = ncs_config(overrides, state=STATE_BY_ENV[env], clusters=CI_CLUSTERS if preset == "ci" else CLUSTERS_BY_ENV[env],
+                     edge_action=EDGE_ACTION_BY_ENV[env], seed=seed)
     if preset == "reduced":
+        built = [o for o in overrides if parse_override(o)[0] in BUILD_FIELDS]
+        if built:
+            raise ValueError(f"--set {built[0]}: at preset 'reduced' the graphs are the shipped ones (their nodes, "
+                             f"k-means seed and buffer pass are fixed); set {', '.join(BUILD_FIELDS)} at another "
+                             "preset, which builds its graphs")
+        state = ncs.state
         paths = {"model": shipped_asset(env, "ncs", "model"), "graph": shipped_asset(env, "ncs", "graph", state),
                  "oracle_graph": shipped_asset(env, "ncs-oracle", "graph", state),
                  "nf_graph": shipped_asset(env, "nf", "graph", state),
@@ -102,16 +109,11 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset,
            "env": env, "ncs": ncs}
     # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
-    slots = learned_perception(model, 4, ncs).num_slots
-    for name, reader in (("", model), ("oracle_", None)):
-        perception = graph_perception(ncs, reader, num_slots=slots)
-        st, st1, acts, true = buffer_transitions(perception, data)
-        graph = build_graph(st, st1, acts, clusters=ncs.clusters, state=state, seed=seed, true_entity=true,
-                            edge_action=ncs.edge_action)
-        graph.info.update(env=env, data=relative_to_repo(data), ncs=to_dict(ncs), **slot_read(perception),
-                          **({"read_slots": slots} if reader is not None else {}))
-        out[f"{name}graph"] = graph
-        out[f"nf_{name}graph"] = set_graph_from_transitions((st, st1, acts), graph, state=state)
+    slots = scene_slots(model, 4, ncs)
+    for name, reader, read_slots in (("", model, slots), ("oracle_", None, None)):
+        out[f"{name}graph"] = graph = graph_from_buffer(ncs, reader, data, num_slots=read_slots)
+        transitions = buffer_transitions(graph_perception(ncs, reader, num_slots=read_slots), data)   # cached
+        out[f"nf_{name}graph"] = set_graph_from_transitions(transitions[:3], graph, state=ncs.state)
         out[f"nf_{name}graph"].info["env"] = env
     for method in ("bc", "iql"):
         out[method], path = obtain_policy(method, preset, seed, env=env)

@@ -406,7 +406,7 @@ class NCSConfig:
     #                             s) or "assigned" (the cells it wins, one slot per object plus
     #                             the floor's); None = the model's env's (ncs.perception.
     #                             SLOT_POSITION_BY_ENV: "assigned" block-rearrange)
-    align: AlignRule = "near"   # which pairs of align's matching are constraints (ncs.policy.match):
+    align: AlignRule = "near"   # which pairs of align's matching are constraints (ncs.policy.align):
     #                             "near" = those whose types are closer than a quarter of the
     #                             scene's median type distance (the kit's; a partial goal's
     #                             unconstrained cubes are no constraints), "hungarian" = all of

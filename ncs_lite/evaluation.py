@@ -27,7 +27,7 @@ from .envs.common import outside_action_space
 from .metrics import in_floor_slot, shared_with_another, slot_assignment
 from .ncs.graph import TransitionGraph
 from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, OraclePerception, acting_restarts,
-                             acting_slot_position, built_slot_position)
+                             acting_slot_position, built_slot_position, scene_slots)
 from .ncs.policy import NCSAgent
 from .sweeps import run_sweep
 from .utils import atomic_write_text, progress
@@ -293,20 +293,14 @@ NEED_NAMES = {"graph": "transition graph (--graph)", "model": "dSLATE checkpoint
 
 def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
-    objects with: one slot per object plus `ncs.extra_slots` (the background's), at least
-    the model's K (or exactly `ncs.slots`), and the restarts (`acting_restarts`), iterations and kind of state of `ncs`
-    (an `NCSConfig`, default the paper's reading). Slot states read from the cells each slot
-    wins (`ncs.slot_position` "assigned") get no more slots than that: a spare slot would win
-    a few cells of a cube (`SLOT_POSITION_BY_ENV`)."""
+    objects with: `scene_slots` slots (one per object plus `ncs.extra_slots`, the background's,
+    at least the model's K; or exactly `ncs.slots`), and the restarts (`acting_restarts`),
+    iterations, kind of state and slot position of `ncs` (an `NCSConfig`, default the paper's
+    reading)."""
     ncs = ncs or NCSConfig()
-    position = acting_slot_position(ncs, model)
-    slots = num_objects + ncs.extra_slots
-    if not (ncs.state == "slot" and position == "assigned"):
-        slots = max(model.cfg.slots.num_slots, slots)
-    if ncs.slots is not None:          # a fixed count: the agent is not told how many objects there are
-        slots = ncs.slots
-    return DSlatePerception(model, iterations=ncs.iterations, num_slots=slots,
-                            restarts=acting_restarts(ncs, model), state=ncs.state, slot_position=position)
+    return DSlatePerception(model, iterations=ncs.iterations, num_slots=scene_slots(model, num_objects, ncs),
+                            restarts=acting_restarts(ncs, model), state=ncs.state,
+                            slot_position=acting_slot_position(ncs, model))
 
 
 def state_features(method: str, state: str, model=None) -> int | None:

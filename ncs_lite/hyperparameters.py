@@ -18,15 +18,15 @@ job of one sweep (`sweeps.run_sweep`), cached too (`evaluate_method`).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 
-from .cache import cached, code_digest, digest
+from .cache import buffer_digest, cached, code_digest
 from .comparison import comparison_assets
 from .config import NCSConfig, to_dict
 from .data import load_manifest
 from .evaluation import TaskSet, evaluate_job, summarize
-from .ncs.graph import TransitionGraph, build_graph
-from .ncs.perception import buffer_transitions, graph_perception, slot_read
+from .ncs.graph import TransitionGraph, graph_from_buffer
+from .ncs.perception import graph_perception
 from .stress import all_of, gap_claim
 from .sweeps import check_executor, run_sweep
 from .tables import table_dir, write_table
@@ -50,33 +50,23 @@ OBJECTS = 4
 
 def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int | None = None):
     """The graph `graph` would be with `clusters` nodes or from its buffer's first `episodes`
-    episodes: the same buffer (`graph.info["data"]`), the same reading of it
-    (`graph_perception`: `model`'s entities with the slots the graph recorded, or ground
-    truth for an oracle graph, `model` None) and the same settings (`graph.info["ncs"]`). Cached by the transitions, the
-    settings and the code."""
+    episodes: `graph_from_buffer` on the same buffer (`graph.info["data"]`), with the same
+    reading of it (`model`'s entities with the slots the graph recorded, or ground truth for an
+    oracle graph, `model` None) and the same settings (`graph.info["ncs"]`). Cached by the
+    buffer, the reading, the settings and the code."""
     info = graph.info
     ncs = NCSConfig(**info["ncs"])
     ncs = replace(ncs, clusters=clusters or ncs.clusters)
     data = REPO_DIR / info["data"]
-    perception = graph_perception(ncs, model, num_slots=info.get("read_slots"))
-    states_t, states_t1, actions, moved = buffer_transitions(perception, data)
-    total = load_manifest(data)["episodes"]
-    per_episode = len(actions) // total                  # transitions in episode order (M = E (T - 1))
-    episodes = total if episodes is None else episodes
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= total:
-        raise ValueError(f"episodes must be an integer in [1, {total}] (the graph buffer's), got {episodes!r}")
-    keep = episodes * per_episode
+    read_slots = info.get("read_slots")
 
     def build():
-        g = build_graph(states_t[:keep], states_t1[:keep], actions[:keep], clusters=ncs.clusters, state=ncs.state,
-                        seed=ncs.seed, true_entity=moved[:keep], edge_action=ncs.edge_action)
-        g.info.update(env=info.get("env"), data=info["data"], ncs={**info["ncs"], "clusters": ncs.clusters},
-                      episodes=episodes, **slot_read(perception),
-                      **({"read_slots": info["read_slots"]} if "read_slots" in info else {}))
-        return g.state_dict()
+        return graph_from_buffer(ncs, model, data, num_slots=read_slots, episodes=episodes).state_dict()
 
-    sd = cached("graph", build, transitions=digest(states_t, states_t1), clusters=ncs.clusters, episodes=episodes,
-                ncs=info["ncs"], read_slots=info.get("read_slots"), code=code_digest("ncs"))
+    reading = graph_perception(ncs, model, num_slots=read_slots).describe()
+    every = load_manifest(data)["episodes"]               # all of them: one graph, one key, given or not
+    sd = cached("graph", build, buffer=buffer_digest(data), reading=reading, ncs=asdict(ncs),
+                episodes=every if episodes is None else episodes, code=code_digest("ncs"))
     return TransitionGraph.from_state_dict(sd)
 
 
@@ -148,18 +138,19 @@ def fig9_claims(rows: list[dict], num_objects: int = OBJECTS) -> list[dict]:
 
 
 def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, seed: int = 0, out_dir=None,
-               allow_dirty: bool = False) -> dict:
+               allow_dirty: bool = False, overrides=()) -> dict:
     """figures/tables/fig9_<preset>.csv / .json: one row per axis (`varied`), value (`x`) and method (success
     and its 95% Wilson interval, the mean share of constraints satisfied when the harness
     reports it, random-fallback share, the graph's edges), and Appendix D.1's claims checked
-    on them (`fig9_claims`). The points run as one sweep (`sweeps.run_sweep` on `executor`)."""
+    on them (`fig9_claims`). The points run as one sweep (`sweeps.run_sweep` on `executor`);
+    `ncs.*` `overrides` set how NCS builds its graphs and acts (`comparison_assets`)."""
     check_executor(executor)
     if preset not in AXES:
         raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(AXES)}")
     name = f"fig9_{preset}"
     provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused first
     start = time.perf_counter()
-    assets = comparison_assets(preset, env=ENV)
+    assets = comparison_assets(preset, env=ENV, overrides=overrides)
     points, jobs = fig9_jobs(assets, preset, seed)
     summaries = [summarize(rows)[0] for rows in run_sweep(evaluate_job, jobs, executor=executor, folder=folder,
                                                           desc="fig9")]
@@ -175,6 +166,7 @@ def fig9_table(preset: str = "reduced", executor: str = "local", folder=None, se
             "tasks_per_point": TASKS[preset], "axes": {a: list(v) for a, v in AXES[preset].items()},
             "ncs": to_dict(assets["ncs"]), "executor": executor, "claims": fig9_claims(rows),
             "assets": {k: relative_to_repo(v) for k, v in assets["paths"].items()},
-            "minutes": round((time.perf_counter() - start) / 60, 1)}
+            "minutes": round((time.perf_counter() - start) / 60, 1),
+            **({"ncs_overrides": list(overrides)} if overrides else {})}
     write_table(name, rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "claims": meta["claims"], "minutes": meta["minutes"]}

@@ -13,12 +13,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .data import load_buffer
+from .data import cached_buffer, load_buffer
 from .envs.block_rearrange import COLOR_NAMES, PALETTE
 from .envs.objects import COLOUR_NAMES, COLOURS
+from .models.split import split
+from .ncs.perception import scene_slots
 
-__all__ = ["adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
-           "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "ridge_probe", "matched_slots", "factorization_scores"]
+__all__ = ["HELDOUT_SEED", "adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
+           "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "heldout_images", "segmentation_scores",
+           "ridge_probe", "matched_slots", "factorization_scores"]
+
+HELDOUT_SEED = 1000          # held-out buffers: the training buffer's seed + 1000
 
 
 def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> float:
@@ -171,26 +176,49 @@ def lost_in_reconstruction(reconstructions, images, true_masks) -> np.ndarray:
     return out
 
 
-def evaluate_segmentation(model, directory, num_slots: int | None = None, iterations: int | None = None,
-                          episodes: int | None = None, batch_size: int = 100, seed: int = 0) -> dict:
-    """fg-ARI of a dSLATE's masks on every frame of a buffer (e.g. held-out episodes).
+def heldout_images(num_objects: int, images: int = 200, seed: int = 0, env: str = "block-rearrange") -> dict:
+    """The first `images` frames of the held-out buffer of `num_objects` objects (buffer seed
+    `seed` + HELDOUT_SEED, episodes never trained on): frames (n, H, W, 3), masks (n, k, H, W),
+    colors (n, k, 3) each frame's object colours, episode_colors (E, k, 3) the buffer's and
+    frames_per_episode (T)."""
+    data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
+                                     seed=seed + HELDOUT_SEED))
+    per_episode = data["frames"].shape[1]
+    return {"frames": data["frames"].reshape(-1, *data["frames"].shape[2:])[:images],
+            "masks": data["masks"].reshape(-1, *data["masks"].shape[2:])[:images],
+            "colors": np.repeat(data["colors"], per_episode, axis=0)[:images], "episode_colors": data["colors"],
+            "frames_per_episode": per_episode}
 
-    num_slots defaults to the model's K; for scenes with more objects than it was trained on,
-    pass one more than the number of objects (slot attention works for any K).
-    Returns {"fg_ari": mean, "std": ..., "sem": ..., "images": n, "num_slots": K, "iterations": it}.
-    """
-    buf = load_buffer(directory)
-    frames = buf["frames"][:episodes].reshape(-1, *buf["frames"].shape[2:])     # (E*5, H, W, 3)
-    masks = buf["masks"][:episodes].reshape(-1, *buf["masks"].shape[2:])        # (E*5, k, H, W)
-    scores = []
-    for i in range(0, len(frames), batch_size):
-        out = model.infer(frames[i:i + batch_size], iterations=iterations, num_slots=num_slots, seed=seed)
-        scores.append(foreground_ari(out.masks, masks[i:i + batch_size]))
-    s = np.concatenate(scores)
-    s = s[~np.isnan(s)]
-    return {"fg_ari": float(s.mean()), "std": float(s.std()), "sem": float(s.std() / np.sqrt(len(s))),
-            "images": int(len(s)), "num_slots": int(num_slots or model.cfg.slots.num_slots),
-            "iterations": int(iterations or model.cfg.slots.eval_iterations)}
+
+def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
+                        seed: int = 0, env: str = "block-rearrange") -> dict:
+    """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
+    share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
+    sharing one, most first), on `heldout_images`, read with 7 iterations, `scene_slots` slots
+    (one per object plus one, at least the model's K) and `restarts` starts per image; with
+    `absorbed_cubes` (n, k), which cubes of each image are in the floor's slot
+    (`absorbed_by_background`). The segmentation measure of notebook 03 and the seeds table."""
+    held = heldout_images(num_objects, images, seed, env)
+    frames, masks = held["frames"], held["masks"]
+    colours, names = _colour_ids(held["episode_colors"])                        # (E, k) per episode
+    colours = np.repeat(colours, held["frames_per_episode"], axis=0)[:images]    # ... per frame
+    slots = scene_slots(model, num_objects)
+    aris, owners, backgrounds = [], [], []
+    for i in range(0, len(frames), 50):
+        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
+        aris.append(foreground_ari(r.masks, masks[i:i + 50]))
+        owner, background = slot_assignment(r.masks, masks[i:i + 50])
+        owners.append(owner)
+        backgrounds.append(background)
+    owner, background = np.concatenate(owners), np.concatenate(backgrounds)
+    shared = shared_with_another(owner, background)
+    absorbed = in_floor_slot(owner, background)
+    pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
+    return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
+            "absorbed": float(absorbed.mean()), "shared": float(shared[owner >= 0].mean()),
+            "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
+            "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts),
+            "absorbed_cubes": absorbed.tolist()}
 
 
 # ---------------------------------------------------------------------- the type/state split
@@ -262,8 +290,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     """Slots of every frame of a buffer's videos, and which slot holds which object.
 
     Slots are inferred through each video (`infer_video`: slot k follows one object) with
-    one slot per object plus one for the floor, at least the model's trained K (as NCS's
-    perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
+    one slot per object plus one for the floor, at least the model's trained K (`scene_slots`,
+    as NCS's perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
     winning most of its true pixels (`slot_assignment`). Returns arrays:
       slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
       per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
@@ -272,10 +300,10 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
       all_positions (E, T, k, 2), all_colours (E, k), colour_names (one per id),
       background (E, T) the floor's slot.
     """
+
     frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
     E, T, k = true.shape[:3]
-    cfg = getattr(model, "cfg", None)                 # stand-in models in tests declare no K
-    num_slots = max(cfg.slots.num_slots if cfg is not None else 0, k + 1)
+    num_slots = scene_slots(model, k)
     slots, masks = [], []
     for i in range(0, E, batch_size):
         r = model.infer_video(frames[i:i + batch_size], num_slots=num_slots, restarts=restarts, seed=seed)
@@ -284,8 +312,7 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)
     owner, background = slot_assignment(masks.flatten(0, 1), true.reshape(E * T, *true.shape[2:]))
     owner, background = owner.reshape(E, T, k), background.reshape(E, T)
-    Dz = model.type_dim
-    z, s = slots[..., :Dz].numpy(), slots[..., Dz:].numpy()
+    z, s = (half.numpy() for half in split(slots, model.type_dim))
     pos = np.asarray(buffer["positions"])[..., :2]                     # (E, T, k, 2)
     colour, names = _colour_ids(buffer["colors"])                      # (E, k)
     e_idx, t_idx, o_idx = np.nonzero(owner >= 0)

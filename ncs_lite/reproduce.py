@@ -28,18 +28,16 @@ import torch
 
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
                          run_comparison)
-from .config import NCSConfig, apply_overrides, from_dict, get_preset, ncs_config, saved_config_diff, to_dict
+from .config import NCSConfig, apply_overrides, from_dict, get_preset, ncs_config, parse_override, saved_config_diff, to_dict
 from .data import cached_buffer, load_buffer, manifest_hash
 from .docs import write_docs
 from .evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
 from .hyperparameters import AXES, fig9_table
 from .inference import (ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, SHIPPED_CHECKPOINT,
                         TRAIN_EPISODES, load_dslate, read_checkpoint)
-from .metrics import (_colour_ids, factorization_scores, foreground_ari, in_floor_slot, shared_slot_pairs,
-                      shared_with_another, slot_assignment)
-from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, build_graph
-from .ncs.perception import (ORACLE_STATES, DSlatePerception, OraclePerception, acting_restarts, buffer_transitions,
-                             slot_read)
+from .metrics import HELDOUT_SEED, factorization_scores, segmentation_scores
+from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, graph_from_buffer
+from .ncs.perception import acting_restarts
 from .stress import TASKS, stress_table
 from .sweeps import check_executor
 from .tables import table_dir, write_table
@@ -47,11 +45,9 @@ from .training import EXTENDABLE, train
 from .utils import (REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress, provenance,
                     relative_to_repo, sha256_file, source_hash)
 
-__all__ = ["TABLES", "run_table", "segmentation_scores", "seeds_table", "clusters_table", "baselines_table",
+__all__ = ["TABLES", "run_table", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
            "mean_sd"]
-
-HELDOUT_SEED = 1000          # held-out buffers: seed + 1000, as notebooks 03 and 05 use
 
 
 def mean_sd(values) -> dict:
@@ -61,35 +57,6 @@ def mean_sd(values) -> dict:
             "sd": float(v.std(ddof=1)) if len(v) > 1 else float("nan"), "n": int(len(v))}
 
 
-def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
-                        seed: int = 0, env: str = "block-rearrange") -> dict:
-    """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
-    share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
-    sharing one, most first), as notebook 03 measures them: `images` frames of the
-    held-out buffer (seed + 1000), the model's `slots.eval_iterations` (7 at `reduced`), one slot
-    per object plus one (at least the model's K), `restarts` starts per image."""
-    data = load_buffer(cached_buffer(max(images // 5, 2), env=env, num_objects=num_objects,
-                                     seed=seed + HELDOUT_SEED))
-    frames = data["frames"].reshape(-1, *data["frames"].shape[2:])[:images]
-    masks = data["masks"].reshape(-1, *data["masks"].shape[2:])[:images]
-    colours, names = _colour_ids(data["colors"])                       # (E, k) per episode
-    colours = np.repeat(colours, data["frames"].shape[1], axis=0)[:images]   # ... per frame
-    slots = max(model.cfg.slots.num_slots, num_objects + 1)
-    aris, owners, backgrounds = [], [], []
-    for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=model.cfg.slots.eval_iterations, num_slots=slots,
-                        restarts=restarts)
-        aris.append(foreground_ari(r.masks, masks[i:i + 50]))
-        owner, background = slot_assignment(r.masks, masks[i:i + 50])
-        owners.append(owner)
-        backgrounds.append(background)
-    owner, background = np.concatenate(owners), np.concatenate(backgrounds)
-    shared = shared_with_another(owner, background)
-    pairs = shared_slot_pairs(owner[:, None], background[:, None], colours, names)
-    return {"fg_ari": float(np.nanmean(np.concatenate(aris))),
-            "absorbed": float(in_floor_slot(owner, background).mean()), "shared": float(shared[owner >= 0].mean()),
-            "pairs": [[p, n] for p, n in pairs.items() if not p.endswith("+floor")],   # a list: JSON keeps its order
-            "images": int(len(frames)), "num_slots": int(slots), "restarts": int(restarts)}
 
 
 # the sources a stage's value depends on: any edit there recomputes every stage
@@ -212,10 +179,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
             graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
                          "code": source_hash(*STAGE_CODE)}
-            graph = _graph_stage(graph_path, graph_key, lambda: DSlatePerception(
-                model, iterations=ncs.iterations, restarts=ncs.graph_restarts, state=state,
-                slot_position=ncs.slot_position), cached_buffer(graph_episodes, env=env, seed=0), ncs, env,
-                f"seed {seed}: graph on {state} states")
+            graph = _graph_stage(graph_path, graph_key, ncs, model, cached_buffer(graph_episodes, env=env, seed=0),
+                                 f"seed {seed}: graph on {state} states")
             row[f"graph_edges{suffix}"] = graph.num_edges
             row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
             for k in objects:
@@ -246,7 +211,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     shipped = min(rows, key=lambda r: r["heldout_error"])["seed"]
     meta = {"env": env, "preset": preset, "overrides": list(overrides), "seeds": list(seeds),
             "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
-            "objects": list(objects), "images": images, "clusters": clusters,
+            "objects": list(objects), "images": images, "clusters": base.clusters,
             "ncs": to_dict(base), "ncs_overrides": ncs_overrides, "summary": summary,
             "shipped_seed": shipped, "shipped_rule": "the lowest held-out reconstruction error (heldout_error)"}
     write_table(f"seeds_{preset}" if block else f"seeds_{env.split('-')[0]}_{preset}", rows, meta, out_dir,
@@ -268,18 +233,15 @@ def heldout_reconstruction_error(model, env: str, images: int = 200) -> float:
     return float(np.concatenate(errors).mean())
 
 
-def _graph_stage(path: Path, key: dict, make_perception, data, ncs, env: str, what: str):
-    """The graph at `path` when it was built from `key`; else built from the buffer at `data`
-    as `make_perception()` reads it (the same cached buffer pass and build as `python -m
-    ncs_lite graph`), and saved there with its key."""
+def _graph_stage(path: Path, key: dict, ncs, model, data, what: str):
+    """The graph at `path` when it was built from `key`; else the graph of the buffer at `data`
+    as `model` (None: ground truth) reads it with `ncs` (`graph_from_buffer`, the path of
+    `python -m ncs_lite graph`), saved there with its key."""
     graph = TransitionGraph.load(path) if path.exists() else None
     if graph is None or graph.info.get("key") != key:
         print(f"{what}", flush=True)
-        perception = make_perception()
-        states_t, states_t1, actions, moved = buffer_transitions(perception, data)
-        graph = build_graph(states_t, states_t1, actions, clusters=ncs.clusters, state=ncs.state, seed=ncs.seed,
-                            true_entity=moved, edge_action=ncs.edge_action)
-        graph.info.update(key=key, state=ncs.state, env=env, **slot_read(perception))
+        graph = graph_from_buffer(ncs, model, data)
+        graph.info.update(key=key)
         graph.save(path)
     return graph
 
@@ -289,8 +251,8 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
     success on the seeds table's tasks, cached in `runs`."""
     oracle_ncs = replace(ncs, slot_position=None)
     key = {"episodes": graph_episodes, "ncs": asdict(oracle_ncs), "code": source_hash(*STAGE_CODE)}
-    graph = _graph_stage(runs / "graph-oracle.pt", key, lambda: OraclePerception(ORACLE_STATES[ncs.state]),
-                         cached_buffer(graph_episodes, env=env, seed=0), ncs, env, "the position oracle's graph")
+    graph = _graph_stage(runs / "graph-oracle.pt", key, ncs, None, cached_buffer(graph_episodes, env=env, seed=0),
+                         "the position oracle's graph")
     row = {}
     for k in objects:
         tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
@@ -332,21 +294,22 @@ def _keep_for_extending(ckpt_path: Path, cfg) -> None:
 
 # ---------------------------------------------------------------------- clusters (Fig. 9, left)
 def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7), episodes: int = 100,
-                   data=None, out_dir=None, allow_dirty: bool = False) -> dict:
+                   data=None, overrides=(), out_dir=None, allow_dirty: bool = False) -> dict:
     """NCS success against the number of nodes, on one checkpoint's states (default: the
-    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`). Slot
-    inference over the buffer runs once (cached, `buffer_transitions`); k-means and the evaluations once
-    per point."""
+    shipped one and the buffer its graph was built from, `comparison.GRAPH_EPISODES`), with the
+    `ncs.*` `overrides` (any field but the swept ncs.clusters) building the graphs and acting.
+    Slot inference over the buffer runs once (cached, `buffer_transitions`); k-means and the
+    evaluations once per point."""
+    swept = [o for o in overrides if parse_override(o)[0] == "ncs.clusters"]
+    if swept:
+        raise ValueError(f"--set {swept[0]}: the clusters table sweeps the number of nodes ({', '.join(map(str, clusters))})")
+    base = ncs_config(overrides)
     checkpoint = Path(checkpoint or SHIPPED_CHECKPOINT)
     model = load_dslate(checkpoint)
     data = Path(data) if data else cached_buffer(GRAPH_EPISODES["reduced"], num_objects=4, seed=0)
-    base = NCSConfig()
-    perception = DSlatePerception(model, iterations=base.iterations, restarts=base.graph_restarts)
-    states_t, states_t1, actions, true_slot = buffer_transitions(perception, data)
     rows = []
     for n in progress(clusters, desc="clusters"):
-        graph = build_graph(states_t, states_t1, actions, clusters=n, seed=base.seed,
-                            true_entity=true_slot)
+        graph = graph_from_buffer(replace(base, clusters=n), model, data)
         row = {"clusters": n, "edges": graph.num_edges}
         for k in objects:
             tasks = TaskSet(num_objects=k, episodes=episodes, seed=0)
@@ -359,7 +322,7 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
         print(json.dumps(row), flush=True)
     meta = {"checkpoint": relative_to_repo(checkpoint), "checkpoint_sha256": sha256_file(checkpoint),
             "buffer": relative_to_repo(data), "manifest_sha256": manifest_hash(data),
-            "episodes": episodes, "ncs": to_dict(base)}
+            "episodes": episodes, "ncs": to_dict(base), **({"ncs_overrides": list(overrides)} if overrides else {})}
     write_table("clusters", rows, meta, out_dir, allow_dirty)
     return {"rows": rows}
 
@@ -394,17 +357,18 @@ def record_run_time(seconds: float, venv_created: bool, cache_was_empty: bool, p
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
-                    out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange") -> dict:
+                    out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange", overrides=()) -> dict:
     """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv):
     one row per method, goal kind and object count (success, 95% Wilson interval, the mean share
-    of constraints satisfied with its interval, random-action share, mean steps), from the assets of `comparison_assets(preset, env=env)`;
-    the per-episode rows go beside it (`_episodes.csv`)."""
+    of constraints satisfied with its interval, random-action share, mean steps), from the assets of
+    `comparison_assets(preset, env=env, overrides=overrides)` (`ncs.*` overrides: how NCS builds its
+    graphs and acts); the per-episode rows go beside it (`_episodes.csv`)."""
     episodes = episodes or EPISODES[preset]
     mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
     name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
     provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
-    assets = comparison_assets(preset, env=env)
+    assets = comparison_assets(preset, env=env, overrides=overrides)
     rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
     keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "constraints",
             "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
@@ -414,7 +378,8 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     meta = {"env": env, "preset": preset, "episodes": episodes, "mpc_episodes": mpc_episodes,
             "assets": {k: {"path": relative_to_repo(v), "sha256": sha256_file(v)} for k, v in assets["paths"].items()
                        if Path(v).is_file()},
-            "minutes": round((time.perf_counter() - start) / 60, 1)}
+            "minutes": round((time.perf_counter() - start) / 60, 1),
+            **({"ncs_overrides": list(overrides)} if overrides else {})}
     write_table(name, table, meta, out_dir, allow_dirty)
     return {"rows": table, "minutes": meta["minutes"]}
 
@@ -491,10 +456,10 @@ SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 # never silently ignored. FLAG_DEFAULTS: the parser's defaults, i.e. "not given"
 TABLE_FLAGS = {
     "seeds": ("preset", "seeds", "runs", "overrides", "episodes", "env", "objects"),
-    "clusters": ("checkpoint", "episodes"),
-    "baselines": ("preset", "episodes", "mpc_episodes", "env"),
+    "clusters": ("checkpoint", "episodes", "overrides"),
+    "baselines": ("preset", "episodes", "mpc_episodes", "env", "overrides"),
     "robogym": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
-    "fig9": ("preset", "executor", "sweep_folder"),
+    "fig9": ("preset", "executor", "sweep_folder", "overrides"),
     "fig10": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
     "fig11": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
 }
@@ -544,18 +509,18 @@ def run_table(name: str, args) -> dict:
         return seeds_table(args.preset, args.seeds, args.runs, args.overrides, args.episodes or 100,
                            objects=args.objects, env=args.env, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "clusters":
-        return clusters_table(args.checkpoint, episodes=args.episodes or 100, out_dir=args.out_dir,
-                              allow_dirty=args.allow_dirty)
+        return clusters_table(args.checkpoint, episodes=args.episodes or 100, overrides=args.overrides,
+                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "baselines":
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
-                               allow_dirty=args.allow_dirty, env=args.env)
+                               allow_dirty=args.allow_dirty, env=args.env, overrides=args.overrides)
     if name == "robogym":
         return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
                              checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
                              out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "fig9":
         return fig9_table(args.preset, executor=args.executor, folder=args.sweep_folder, out_dir=args.out_dir,
-                          allow_dirty=args.allow_dirty)
+                          allow_dirty=args.allow_dirty, overrides=args.overrides)
     if name in STRESS_TABLES:
         return TABLES[name](args.preset, executor=args.executor, folder=args.sweep_folder, episodes=args.episodes,
                             mpc_episodes=args.mpc_episodes, out_dir=args.out_dir, allow_dirty=args.allow_dirty)

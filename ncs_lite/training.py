@@ -56,6 +56,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .cache import load_or_train
 from .config import DSlateConfig, from_dict, get_preset, saved_config_diff, to_dict
 from .data import EpisodeDataset, cached_buffer, load_manifest, manifest_hash
 from .data.augment import augment_colors
@@ -623,23 +624,17 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     cfg.train.seed = int(seed)
     path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
-    resume = force = False
-    if path.exists() and not train_from_scratch:
-        why = _unfit(path, cfg, env, data)
-        if why is None:
-            step = int(read_checkpoint(path)["step"])
-            if step >= cfg.train.total_steps():
-                return load_dslate(path, device), path
-            resume = True
-            print(f"obtain_dslate: resuming {path} at step {step} of {cfg.train.total_steps()}")
-        else:
-            force = True
-            print(f"obtain_dslate: retraining {path} from scratch: {why}")
-    elif path.exists():
-        force = True
-        print(f"obtain_dslate: retraining {path} from scratch (train_from_scratch=True)")
-    train(cfg, data, path, resume=resume, force=force, device=device, env=env)
-    return load_dslate(path, device), path
+
+    def unfinished(ckpt: Path) -> str | None:
+        step, total = int(read_checkpoint(ckpt)["step"]), cfg.train.total_steps()
+        return None if step >= total else f"at step {step} of {total}"
+
+    model = load_or_train(path, unfit=lambda ckpt: _unfit(ckpt, cfg, env, data), unfinished=unfinished,
+                          train=lambda resume, force: train(cfg, data, path, resume=resume, force=force,
+                                                            device=device, env=env),
+                          load=lambda ckpt: load_dslate(ckpt, device), who="obtain_dslate",
+                          from_scratch=train_from_scratch)
+    return model, path
 
 
 def _unfit(path: Path, cfg, env: str, data: Path) -> str | None:

@@ -11,6 +11,7 @@ from ncs_lite.baselines import (FALLBACKS, BCAgent, IQLAgent, NFAgent, SetGraph,
                                 save_iql, set_graph_from_buffer, train_bc, train_iql)
 from ncs_lite.baselines.goal_conditioned import ActionBox, HindsightGoals
 from ncs_lite.baselines.iql import IQLNetworks
+from ncs_lite.config import NCSConfig
 from ncs_lite.data import cached_buffer, load_buffer
 from ncs_lite.envs import make
 from ncs_lite.evaluation import TaskSet, evaluate, summarize
@@ -158,7 +159,7 @@ def test_nf_oracle_solves_two_object_tasks():
     nf = set_graph_from_buffer(buffer, OraclePerception(), clusters=16)   # 16 cells = 16 mask states
     assert nf.num_nodes == 120                  # every pair of cells (16 choose 2) was seen
     # binding to the NCS graph's centroids (same 16 cells) gives the same scene graph
-    ncs_graph = graph_from_buffer(buffer, OraclePerception(), clusters=16)
+    ncs_graph = graph_from_buffer(NCSConfig(clusters=16), None, cached_buffer(200, num_objects=2))
     same = set_graph_from_buffer(buffer, OraclePerception(), graph=ncs_graph)
     assert (same.num_nodes, same.num_edges) == (nf.num_nodes, nf.num_edges)
     agents = []

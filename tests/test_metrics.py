@@ -141,7 +141,7 @@ def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colour
     from types import SimpleNamespace
 
     from ncs_lite.metrics import _colour_ids
-    from ncs_lite.reproduce import segmentation_scores
+    from ncs_lite.metrics import segmentation_scores
 
     data = load_buffer(cached_buffer(2, num_objects=3, seed=1000))    # what segmentation_scores reads
     frames = data["frames"].reshape(-1, *data["frames"].shape[2:])
@@ -159,6 +159,8 @@ def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colour
 
     seg = segmentation_scores(MergesTheFirstTwo(), 3, images=10)
     assert seg["shared"] == pytest.approx(2 / 3) and seg["absorbed"] == 0
+    assert np.asarray(seg["absorbed_cubes"]).shape == (10, 3) and not np.any(seg["absorbed_cubes"])
+    assert seg["num_slots"] == 4 and seg["images"] == 10         # one slot per cube and the floor's
     colours, names = _colour_ids(data["colors"])
     pairs = ["+".join(sorted((names[colours[e, 0]], names[colours[e, 1]]))) for e in range(2)]
     frames_per_episode = data["frames"].shape[1]

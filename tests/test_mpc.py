@@ -148,16 +148,16 @@ def test_every_method_names_what_it_needs():
 
 def test_wrong_kinds_of_graph_and_policy_are_refused(tmp_path):
     from ncs_lite.baselines import SetGraph, bc_config, train_bc
+    from ncs_lite.config import NCSConfig
     from ncs_lite.data import load_buffer
     from ncs_lite.ncs.graph import graph_from_buffer
-    from ncs_lite.ncs.perception import OraclePerception
 
     env = make("block-rearrange", num_objects=4)
     bc, _ = train_bc(load_buffer(cached_buffer(16)), env.action_space, bc_config("ci", steps=2))
     env.close()
     with pytest.raises(ValueError, match=r"needs a IQL policy \(IQLNetworks\), got a BCPolicy"):
         agent_factory("iql", policy=bc)
-    ncs_graph = graph_from_buffer(load_buffer(cached_buffer(16)), OraclePerception(), clusters=8)
+    ncs_graph = graph_from_buffer(NCSConfig(clusters=8), None, cached_buffer(16))
     with pytest.raises(ValueError, match="needs a SetGraph"):
         agent_factory("nf-oracle", graph=ncs_graph)
     with pytest.raises(ValueError, match="needs a TransitionGraph"):

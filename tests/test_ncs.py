@@ -3,25 +3,31 @@ import numpy as np
 import pytest
 import torch
 
+from ncs_lite.config import NCSConfig
 from ncs_lite.data import collect, load_buffer
 from ncs_lite.evaluation import (TaskSet, agent_factory, evaluate, summarize, task_seed,
                                  wilson_interval, write_csv)
 from ncs_lite.ncs.graph import TransitionGraph, build_graph, graph_from_buffer, isolate
 from ncs_lite.ncs.perception import OraclePerception, pool_masks
-from ncs_lite.ncs.policy import align, constraint_distances
+from ncs_lite.ncs.policy import align, constraint_distances, type_distances
 
 
 @pytest.fixture(scope="module")
-def buffer(tmp_path_factory):
+def buffer_dir(tmp_path_factory):
     path = tmp_path_factory.mktemp("buf")
     collect(path, episodes=600, seed=0)   # 2400 moves: all 240 cell pairs seen
-    return load_buffer(path)
+    return path
 
 
 @pytest.fixture(scope="module")
-def oracle_graph(buffer):
+def buffer(buffer_dir):
+    return load_buffer(buffer_dir)
+
+
+@pytest.fixture(scope="module")
+def oracle_graph(buffer_dir):
     with pytest.warns(RuntimeWarning, match="empty cluster"):   # 16 cells, 30 clusters
-        return graph_from_buffer(buffer, OraclePerception(), clusters=30)
+        return graph_from_buffer(NCSConfig(clusters=30), None, buffer_dir)
 
 
 def test_isolate_finds_the_changed_entity():
@@ -61,6 +67,26 @@ def test_graph_save_load_round_trip(oracle_graph, tmp_path):
         TransitionGraph.load(tmp_path / "missing.pt")
 
 
+def test_the_papers_steps_by_name_make_the_graph(buffer):
+    """`from ncs_lite.ncs import ...` the six steps; build_graph is isolate, cluster and bind."""
+    from ncs_lite.ncs import align, bind, cluster, select_constraint, split  # noqa: F401
+
+    st, st1, actions, _ = OraclePerception().transitions(buffer)
+    st, st1, actions = st[:200], st1[:200], actions[:200]
+    graph = build_graph(st, st1, actions, clusters=8)
+    moved = isolate(st, st1)
+    rows = torch.arange(len(moved))
+    before, after = st[rows, moved], st1[rows, moved]                    # (M, D) each
+    nodes = cluster(torch.cat([before, after]), 8, "mask")
+    assert torch.equal(graph.centroids, nodes.centroids) and graph.bind_metric == "cosine"
+    src, dst = bind(before, nodes.centroids, "cosine"), bind(after, nodes.centroids, "cosine")
+    assert set(graph.edges) == {(s, d) for s, d in zip(src.tolist(), dst.tolist()) if s != d}
+    assert torch.equal(graph.bind(before), src)
+    slots = torch.rand(2, 3, 10)
+    types, states = split(slots, 4)                                       # [type z ; state s]
+    assert types.shape == (2, 3, 4) and torch.equal(torch.cat([types, states], -1), slots)
+
+
 def test_build_graph_checks_actions():
     st = torch.rand(3, 2, 4)
     with pytest.raises(ValueError, match=r"actions must have shape \(3, 6\)"):
@@ -70,8 +96,9 @@ def test_build_graph_checks_actions():
 def test_align_matches_types_despite_permutation():
     types = torch.eye(5)[:4] * 3
     perm = torch.tensor([2, 0, 3, 1])
-    g, c = align(types, types[perm] + 0.01)
+    g, c, cost = align(types, types[perm] + 0.01)
     np.testing.assert_array_equal(c[np.argsort(g)], perm.numpy())
+    assert torch.equal(cost, type_distances(types, types[perm] + 0.01))      # what it matched on, (G, C)
 
 
 def test_mutual_align_drops_entities_without_a_counterpart():
@@ -79,34 +106,56 @@ def test_mutual_align_drops_entities_without_a_counterpart():
     # cube 1, which the plain matching pairs with a leftover goal slot (4, far from every type)
     current = torch.tensor([[0.0, 0], [5, 0], [0, 5], [9, 9]])
     goal = torch.tensor([[0.1, 0], [0, 5.1], [9, 9.1], [-20, -20]])
-    g, c = align(current, goal)
+    g, c, _ = align(current, goal)
     assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3), (3, 1)]
     for rule in ("mutual", "either", "near"):
-        g, c = align(current, goal, rule)
+        g, c, _ = align(current, goal, rule)
         assert sorted(zip(g.tolist(), c.tolist())) == [(0, 0), (1, 2), (2, 3)]
     # a spare goal slot that copies part of cube 0 is cube 0's nearest type: "mutual" drops
     # the cube's pair, "either" keeps it (the cube is still its own goal slot's nearest)
     current = torch.tensor([[0.0, 0], [5, 0], [1, 0]])        # cube 0, cube 1, a spare slot
     goal = torch.tensor([[0.0, 0.2], [5, 0.1], [0.1, 0]])       # cube 0, cube 1, a spare slot
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")))) == [(0, 0), (1, 1), (2, 2)]
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")))) == [(1, 1)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "either")[:2]))) == [(0, 0), (1, 1), (2, 2)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "mutual")[:2]))) == [(1, 1)]
     # "near" keeps the two cubes and drops the spare slots' pair (far apart for one entity)
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 1)]
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")[:2]))) == [(0, 0), (1, 1)]
     # a partial goal: cube 1 is unconstrained and its nearest goal type is a spare slot far from
     # it; "either" pairs them (cube 1 would be moved), "near" does not
     current = torch.tensor([[0.0, 0], [5, 0], [0, 9]])         # cube 0, cube 1, floor
     goal = torch.tensor([[0.1, 0], [0, 9.1], [6, 4]])           # cube 0, floor, a spare slot
-    assert (2, 1) in zip(*(a.tolist() for a in align(current, goal, "either")))
-    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")))) == [(0, 0), (1, 2)]
+    assert (2, 1) in zip(*(a.tolist() for a in align(current, goal, "either")[:2]))
+    assert sorted(zip(*(a.tolist() for a in align(current, goal, "near")[:2]))) == [(0, 0), (1, 2)]
     same = torch.zeros(4, 3)                                    # identical types stay paired
-    assert [a.tolist() for a in align(same, same[:2], "near")] == [[0, 1], [0, 1]]
+    assert [a.tolist() for a in align(same, same[:2], "near")[:2]] == [[0, 1], [0, 1]]
     types = torch.eye(5)[:4] * 3                               # counterparts all round: no change
     perm = torch.tensor([2, 0, 3, 1])
     for rule in ("mutual", "either", "near"):
-        for a, b in zip(align(types, types[perm] + 0.01, "hungarian"), align(types, types[perm] + 0.01, rule)):
+        for a, b in zip(align(types, types[perm] + 0.01, "hungarian")[:2], align(types, types[perm] + 0.01, rule)[:2]):
             np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="align rule must be one of 'hungarian', 'mutual', 'either', 'near', got 'best'"):
         align(types, types, "best")
+
+
+def test_select_constraint_samples_only_unsatisfied_pairs():
+    """select-constraint: a pair whose two states bind to one node is satisfied (unless
+    `same_node` is off, as for edge actions read from states); the pair is drawn in proportion
+    to the rest of the distances, and with none left nothing is drawn from the generator."""
+    from ncs_lite.ncs.policy import select_constraint
+
+    graph = TransitionGraph(torch.eye(4), "cosine")                 # node i = unit vector e_i
+    current = torch.eye(4)[[0, 1, 2]] + torch.tensor([[0.0, 0, 0, 0], [0, 0, 0.1, 0], [0, 0, 0, 0]])
+    goal = torch.eye(4)[[0, 3, 2]] + torch.tensor([[0.0, 0.05, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]])
+    rng = np.random.default_rng(0)
+    chosen = select_constraint(current, goal, graph, rng)
+    assert chosen.same_node.tolist() == [True, False, True] and chosen.raw_distances[0] > 0
+    assert chosen.probabilities.tolist() == [0.0, 1.0, 0.0] and (chosen.selected, chosen.src, chosen.dst) == (1, 1, 3)
+    loose = select_constraint(current, goal, graph, rng, same_node=False)
+    assert not loose.same_node.any() and loose.probabilities[0] > 0
+    np.testing.assert_array_equal(loose.distances, loose.raw_distances)
+    before = rng.bit_generator.state
+    done = select_constraint(current[[0, 2]], goal[[0, 2]], graph, rng)
+    assert done.selected is None and done.src is None and not done.probabilities.any()
+    assert rng.bit_generator.state == before
 
 
 def test_constraint_distance_zero_when_satisfied():
@@ -316,6 +365,38 @@ def test_cached_loads_what_it_stored_and_recomputes_on_a_new_key(tmp_path, monke
     assert digest({"a": 1, "b": 2}) == digest({"b": 2, "a": 1}) != digest({"a": 1, "b": 3})
 
 
+def test_load_or_train_loads_resumes_or_retrains(tmp_path, capsys):
+    """The one "load if present, else train" of obtain_dslate and obtain_policy: a finished,
+    fitting run is loaded; an unfinished one resumed; an unfit one, or any asked from scratch,
+    retrained; each decision but loading printed."""
+    from ncs_lite.cache import load_or_train
+
+    path, trained = tmp_path / "run.pt", []
+    state = {"step": 0, "fits": True}
+
+    def train(resume, force):
+        trained.append((resume, force))
+        path.write_text("run")
+        state["step"] = 10
+
+    def obtain(from_scratch=False):
+        return load_or_train(path, unfit=lambda p: None if state["fits"] else "another config",
+                             unfinished=lambda p: None if state["step"] >= 10 else f"at step {state['step']}",
+                             train=train, load=lambda p: p.read_text(), who="obtain", from_scratch=from_scratch)
+
+    assert obtain() == "run" and trained == [(False, False)]             # no run: trained
+    assert obtain() == "run" and len(trained) == 1 and capsys.readouterr().out == ""   # finished: loaded
+    state["step"] = 4
+    obtain()
+    assert trained[-1] == (True, False) and "obtain: resuming" in capsys.readouterr().out
+    state["fits"] = False
+    obtain()
+    assert trained[-1] == (False, True) and "from scratch: another config" in capsys.readouterr().out
+    state["fits"] = True
+    obtain(from_scratch=True)
+    assert trained[-1] == (False, True) and "train_from_scratch=True" in capsys.readouterr().out
+
+
 def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monkeypatch, capsys):
     from ncs_lite.cache import code_digest
     from ncs_lite.ncs.perception import buffer_transitions
@@ -341,9 +422,9 @@ def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monke
 
 # ------------------------------------------------------------------ slot states (Table 3, s)
 @pytest.fixture(scope="module")
-def position_graph(buffer):
+def position_graph(buffer_dir):
     """The oracle's graph on cube positions, the ground-truth stand-in for slot states."""
-    return graph_from_buffer(buffer, OraclePerception("position"), clusters=16)
+    return graph_from_buffer(NCSConfig(clusters=16, state="slot"), None, buffer_dir)
 
 
 def test_ncs_config_state_error():
@@ -437,8 +518,6 @@ def test_oracle_position_state(buffer, position_graph):
     assert isolate_distance(p[:2], q[:2]) < 1e-6 < isolate_distance(p, q)
     with pytest.raises(ValueError, match="oracle state must be one of \\['mask', 'position'\\], got 'slot'"):
         OraclePerception("slot")
-    with pytest.raises(ValueError, match="does not match the perception's 'slot'"):
-        graph_from_buffer(buffer, perception, clusters=16, state="mask")
 
 
 def test_oracle_position_solves_tasks_random_does_not(position_graph):
@@ -627,8 +706,9 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     graph.info.update(perception_state="slot", oracle=False)
     with pytest.raises(ValueError, match="slot_position 'attention'; the agent would act with 'assigned'"):
         agent_factory("ncs", graph=graph, model=model, ncs=NCSConfig(state="slot"))
-    assert graph_from_buffer(buf, read, clusters=4).info["slot_position"] == "assigned"
-    assert "slot_position" not in graph_from_buffer(buf, OraclePerception("position"), clusters=4).info
+    assigned = NCSConfig(clusters=4, state="slot", iterations=2, graph_restarts=1, slot_position="assigned")
+    assert graph_from_buffer(assigned, model, tmp_path / "buf").info["slot_position"] == "assigned"
+    assert "slot_position" not in graph_from_buffer(assigned, None, tmp_path / "buf").info
     with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned' or None "
                                          r"\(the env's\), got 'hard'"):
         ncs_config(["ncs.slot_position=hard"])

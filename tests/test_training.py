@@ -324,15 +324,6 @@ def test_cli_subcommand():
     assert callable(args.func)
 
 
-def test_evaluate_segmentation_on_a_buffer(buffer, tmp_path):
-    from ncs_lite.metrics import evaluate_segmentation
-
-    model = load_dslate(train(ci(), buffer, tmp_path / "m.pt", max_steps=1))
-    res = evaluate_segmentation(model, buffer, num_slots=5, iterations=2, batch_size=7)
-    assert res["images"] == 4 * 5 and res["num_slots"] == 5 and res["iterations"] == 2
-    assert -1.0 <= res["fg_ari"] <= 1.0 and res["std"] >= 0.0
-
-
 def test_obtain_dslate_trains_once_then_reuses(tmp_path, monkeypatch):
     from ncs_lite.training import obtain_dslate
 

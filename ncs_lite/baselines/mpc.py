@@ -109,7 +109,7 @@ class MPCAgent:
             raise ValueError("call reset(obs, info) before act: MPC reads the goal's slots at reset")
         cur = self.perception.current(obs, info)
         slots = slots_of(cur)
-        g_idx, c_idx = align(cur.types, self._goal[:, :cur.types.shape[1]], self.align)
+        g_idx, c_idx, _ = align(cur.types, self._goal[:, :cur.types.shape[1]], self.align)
         initial = None
         if self._plan is not None:         # warm start: the rest of the last plan, then the middle
             initial = torch.cat([self._plan[1:], ((self.lower + self.upper) / 2)[:1]])

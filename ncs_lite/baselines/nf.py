@@ -35,9 +35,8 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, check_features, check_graph_file, content_digest,
-                         edge_tensors)
-from ..ncs.kmeans import assign, kmeans
+from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, bind, check_features, check_graph_file, cluster,
+                         content_digest, edge_tensors)
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from .goal_conditioned import as_buffer
 
@@ -95,8 +94,7 @@ class SetGraph:
         if states.ndim < 2 or states.shape[-1] != self.centroids.shape[1]:
             raise ValueError(f"states must have shape (..., K, {self.centroids.shape[1]}), got {tuple(states.shape)}")
         k = states.shape[-2]
-        labels, _ = assign(states.reshape(-1, states.shape[-1]).float(), self.centroids, self.bind_metric)
-        rows = labels.reshape(-1, k).sort(dim=1).values.tolist()          # (scenes, K)
+        rows = bind(states, self.centroids, self.bind_metric).reshape(-1, k).sort(dim=1).values.tolist()   # (scenes, K)
         return [tuple(r) for r in rows]
 
     def node(self, states: torch.Tensor) -> int | None:
@@ -232,10 +230,9 @@ def set_graph_from_transitions(transitions, graph=None, *, clusters: int = 30, s
             graph.check_state(state, features=states_t.shape[-1])
         centroids, metric, source = graph.centroids, graph.bind_metric, "ncs graph"
     else:
-        metrics = METRICS_BY_STATE[state]
         everything = torch.cat([states_t, states_t1]).reshape(-1, states_t.shape[-1]).float()
-        centroids = kmeans(everything, clusters, metrics["cluster"], seed=seed).centroids
-        metric, source = metrics["bind"], f"k-means ({clusters}, seed {seed})"
+        centroids = cluster(everything, clusters, state, seed=seed).centroids
+        metric, source = METRICS_BY_STATE[state]["bind"], f"k-means ({clusters}, seed {seed})"
     out = build_set_graph(states_t, states_t1, actions, centroids, metric)
     out.info.update(entity_nodes_from=source, state=state)
     return out

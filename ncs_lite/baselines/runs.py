@@ -15,7 +15,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from ..cache import code_digest
+from ..cache import code_digest, load_or_train
 from ..config import section_config
 from ..data import cached_buffer, load_buffer, load_manifest, manifest_hash
 from ..envs import make
@@ -112,19 +112,16 @@ def obtain_policy(method: str, preset: str = "reduced", seed: int = 0, env: str 
     cfg = policy_config(method, preset, seed=seed)
     path = cache_dir() / "checkpoints" / f"{method}-{env}-{preset}-s{seed}.pt"
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=0)
-    resume = force = False
-    if path.exists():
-        why = _unfit(path, method, cfg, env, data)
-        if why is None:
-            if int(read_checkpoint(path, method)["step"]) >= cfg.steps:
-                return load_trained_policy(path, method), path
-            resume = True
-            print(f"obtain_policy: resuming {path}")
-        else:
-            force = True
-            print(f"obtain_policy: retraining {path} from scratch: {why}")
-    train_policy(method, cfg, data, path, env, resume=resume, force=force)
-    return load_trained_policy(path, method), path          # with its log, info and step
+
+    def unfinished(ckpt: Path) -> str | None:
+        step = int(read_checkpoint(ckpt, method)["step"])
+        return None if step >= cfg.steps else f"at step {step} of {cfg.steps}"
+
+    model = load_or_train(path, unfit=lambda ckpt: _unfit(ckpt, method, cfg, env, data), unfinished=unfinished,
+                          train=lambda resume, force: train_policy(method, cfg, data, path, env, resume=resume,
+                                                                   force=force),
+                          load=lambda ckpt: load_trained_policy(ckpt, method), who="obtain_policy")
+    return model, path          # with its log, info and step
 
 
 __all__ = ["POLICIES", "load_trained_policy", "obtain_policy", "policy_config", "train_policy"]

@@ -12,11 +12,11 @@ from __future__ import annotations
 import time
 
 from ..config import NCSConfig
-from ..data import cached_buffer, load_buffer
+from ..data import cached_buffer
 from ..evaluation import TaskSet, agent_factory
 from ..inference import SHIPPED_CHECKPOINT, load_dslate
 from ..ncs.graph import graph_from_buffer
-from ..ncs.perception import DSlatePerception, OraclePerception
+from ..ncs.perception import DSlatePerception
 
 
 # slot-attention restarts whose inference time the bench also measures (ncs.perception)
@@ -32,14 +32,12 @@ def _per_call(fn, n: int) -> float:
 
 
 def run(steps: int = 50) -> dict:
-    buffer = load_buffer(cached_buffer(1000))
-    oracle_graph = graph_from_buffer(buffer, OraclePerception(), clusters=30)
+    oracle_graph = graph_from_buffer(NCSConfig(clusters=30), None, cached_buffer(1000))
     ckpt = SHIPPED_CHECKPOINT
     model = load_dslate(ckpt) if ckpt.exists() else None
     learned = {}
     if model is not None:
-        small = load_buffer(cached_buffer(200))
-        learned = {state: graph_from_buffer(small, DSlatePerception(model, state=state), clusters=30)
+        learned = {state: graph_from_buffer(NCSConfig(clusters=30, state=state), model, cached_buffer(200))
                    for state in ("mask", "slot")}
     out = {}
     for k in (4, 7):

@@ -52,6 +52,7 @@ from .mixture_decoder import MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
 from .slot_attention import SlotAttention
+from .split import split
 from .state_decoder import SlotRenderer, StateMaskDecoder, coordinate_grid
 
 __all__ = ["DSlate", "SlotInference", "MODEL_VERSION"]
@@ -302,12 +303,12 @@ class DSlate(nn.Module):
         if self.state_masks is not None:
             # a read-out: its gradient stops at s (through slot attention it collapsed the masks
             # into one slot that a bump can draw: docs/HISTORY.md, "The type/state split")
-            logits = self.state_masks(slots[..., self.type_dim:].flatten(0, 1).detach())   # (B*T, K, N')
+            logits = self.state_masks(split(slots, self.type_dim)[1].flatten(0, 1).detach())   # (B*T, K, N')
             out["mask"] = mask_cross_entropy(logits, attn.flatten(0, 1).detach())
             loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
         if self.cfg.dynamics.latent_weight > 0:
-            target = slots[:, 1:, :, self.type_dim:].detach()
-            out["latent"] = (pred[..., self.type_dim:] - target).float().pow(2).sum((2, 3)).mean()
+            target = split(slots[:, 1:], self.type_dim)[1].detach()
+            out["latent"] = (split(pred, self.type_dim)[1] - target).float().pow(2).sum((2, 3)).mean()
             loss = loss + self.cfg.dynamics.latent_weight * out["latent"]
         out["loss"] = loss
         return out
@@ -329,7 +330,7 @@ class DSlate(nn.Module):
         videos = self._check_images(videos, 5, "videos")
         _, slots, _ = self._read_videos(videos)
         pred = self.dynamics(slots[:, :-1], actions.to(videos.device))
-        latent = (pred[..., self.type_dim:] - slots[:, 1:, :, self.type_dim:]).float().pow(2).sum((2, 3)).mean()
+        latent = (split(pred, self.type_dim)[1] - split(slots[:, 1:], self.type_dim)[1]).float().pow(2).sum((2, 3)).mean()
         return {**dict.fromkeys(LOSSES, latent.new_zeros(())), "loss": latent, "latent": latent}
 
     def render_loss(self, videos: torch.Tensor, masks: bool = False) -> dict:
@@ -458,8 +459,7 @@ class DSlate(nn.Module):
                 best = err.reshape(restarts, B).argmin(0) * B + torch.arange(B, device=self.device)
                 slots, attn = slots[best], attn[best]
             masks = self.upsample_masks(attn)
-            return SlotInference(slots, slots[..., :self.type_dim], slots[..., self.type_dim:],
-                                 masks, attn)
+            return SlotInference(slots, *split(slots, self.type_dim), masks, attn)
 
     @torch.no_grad()
     def reconstruction_error(self, x: torch.Tensor, slots: torch.Tensor,
@@ -532,7 +532,7 @@ class DSlate(nn.Module):
 
     def _state_alpha(self, slots: torch.Tensor) -> torch.Tensor:
         """Masks (B, K, N') on slot attention's grid drawn from the states of slots (B, K, D)."""
-        logits = self.state_masks(slots[..., self.type_dim:].to(self.pos_emb.dtype))
+        logits = self.state_masks(split(slots, self.type_dim)[1].to(self.pos_emb.dtype))
         return logits.float().softmax(1)
 
     def _render_alpha(self, slots: torch.Tensor) -> torch.Tensor:

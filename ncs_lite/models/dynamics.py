@@ -15,6 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .split import split
 from .transformer import Block
 
 __all__ = ["Dynamics"]
@@ -42,6 +43,5 @@ class Dynamics(nn.Module):
         for blk in self.blocks:
             x = blk(x)
         delta = self.head(self.norm(x[:, :K]))                        # (B', K, Ds)
-        types = s[..., :self.type_dim]                                # carried unchanged
-        states = s[..., self.type_dim:] + delta.to(s.dtype)
-        return torch.cat([types, states], dim=-1).reshape(*lead, K, D)
+        types, states = split(s, self.type_dim)                       # the type is carried unchanged
+        return torch.cat([types, states + delta.to(s.dtype)], dim=-1).reshape(*lead, K, D)

@@ -38,6 +38,7 @@ from torch import nn
 
 from ..config import MIXTURE_ALPHAS, MIXTURE_APPEARANCES
 from .positional import sinusoid_2d
+from .split import split
 
 __all__ = ["MixtureDecoder"]
 
@@ -70,7 +71,7 @@ class MixtureDecoder(nn.Module):
             got = None if attention is None else tuple(attention.shape)
             raise ValueError(f"alpha 'attention' needs attention of shape (B, {K}, {N}), got {got}")
         if self.appearance == "type":                                 # one look per slot
-            look = self.mlp(self.inp(slots[..., :self.type_dim])).float()   # (B, K, p*p*3)
+            look = self.mlp(self.inp(split(slots, self.type_dim)[0])).float()   # (B, K, p*p*3)
             return look[:, :, None], attention.float()
         h = self.inp(slots)[:, :, None] + self.pos[:, None]          # (B, K, N, hidden)
         out = self.mlp(h).float()                                     # (B, K, N, p*p*3 [+ 1])

@@ -29,6 +29,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .split import split
+
 __all__ = ["SlotRenderer", "StateMaskDecoder", "coordinate_grid"]
 
 
@@ -81,7 +83,7 @@ class SlotRenderer(nn.Module):
 
     def forward(self, slots: torch.Tensor) -> torch.Tensor:
         """slots (B, K, Dz + Ds) -> mask logits (B, K, N); softmax over K gives masks."""
-        out = self.where(slots[..., self.type_dim:])
+        out = self.where(split(slots, self.type_dim)[1])
         rest = out[..., 2:] + self.what(slots)
         sigma = rest[..., :2].clamp(-6, 3).exp()
         d = (self.coords.to(slots.dtype) - out[..., None, :2]) / sigma[:, :, None]   # (B, K, N, 2)

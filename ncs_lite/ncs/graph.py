@@ -1,6 +1,8 @@
 """The NCS transition graph (Section 4.1, Appendix A.2, Tables 3-4): isolate, cluster, bind.
 
-From a buffer of transitions (entity states before and after, and the action taken):
+From a buffer of transitions (entity states before and after, and the action taken), each step
+a function of this module (`build_graph` runs the three; `graph_from_buffer`, the one path from
+a buffer to a graph, reads the buffer first):
 
 1. **isolate**: the moved entity of a transition is argmax_k d(s_t^k, s_{t+1}^k), d the
    cosine distance (Table 3). Every other entity is assumed untouched.
@@ -44,7 +46,7 @@ Shapes: M transitions, K entities per frame, D state features, N nodes.
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -52,9 +54,11 @@ import torch
 
 from ..cache import digest
 from ..config import EDGE_ACTIONS
+from ..data import load_manifest, manifest_hash
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
-from .kmeans import assign, kmeans, pairwise_distances
-from .perception import slot_read
+from ..utils import relative_to_repo
+from .kmeans import KMeansResult, assign, kmeans, pairwise_distances
+from .perception import buffer_transitions, graph_perception, slot_read
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -68,6 +72,8 @@ EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "re
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
+# the NCSConfig fields that only building a graph reads, never an agent acting on one
+BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
 
 
 def isolate_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -86,6 +92,25 @@ def isolate(states_t: torch.Tensor, states_t1: torch.Tensor) -> torch.Tensor:
         raise ValueError("states_t and states_t1 must both have shape (M, K, D), got "
                          f"{tuple(states_t.shape)} and {tuple(states_t1.shape)}")
     return isolate_distance(states_t, states_t1).argmax(dim=1)
+
+
+def cluster(states: torch.Tensor, clusters: int, state: str = "mask", *, seed: int = 0,
+            max_iter: int = 100) -> KMeansResult:
+    """The graph's nodes: K-means of isolated entity states (M, D) into `clusters` centroids
+    (N, D), under Table 3's cluster metric for `state` states (IoU for masks, squared Euclidean
+    for slot states), k-means++ seeded by `seed` (`kmeans`)."""
+    if state not in METRICS_BY_STATE:
+        raise ValueError(f"state must be one of {sorted(METRICS_BY_STATE)}, got {state!r}")
+    return kmeans(states, clusters, METRICS_BY_STATE[state]["cluster"], seed=seed, max_iter=max_iter)
+
+
+def bind(states: torch.Tensor, centroids: torch.Tensor, metric: str) -> torch.Tensor:
+    """The node of each state: (..., D) states -> (...) int64 index of the nearest centroid
+    (N, D) under `metric`, Table 3's bind metric (cosine for masks, squared Euclidean for slot
+    states; ties go to the lowest index, `assign`)."""
+    flat = states.reshape(-1, states.shape[-1]).float()
+    labels, _ = assign(flat, centroids, metric)
+    return labels.reshape(states.shape[:-1])
 
 
 GRAPH_KIND = "ncs-graph"
@@ -224,10 +249,8 @@ class TransitionGraph:
         check_features(self, features, "graph")
 
     def bind(self, states: torch.Tensor) -> torch.Tensor:
-        """Node of each state (..., D) -> (...) int64, nearest centroid under `bind_metric`."""
-        flat = states.reshape(-1, states.shape[-1]).float()
-        labels, _ = assign(flat, self.centroids, self.bind_metric)
-        return labels.reshape(states.shape[:-1])
+        """Node of each state (..., D) -> (...) int64: `bind` to these centroids under `bind_metric`."""
+        return bind(states, self.centroids, self.bind_metric)
 
     def moved_subspace(self, variance: float = 1.0) -> torch.Tensor | None:
         """(D, P) orthonormal directions along which the examples' states move: the fewest
@@ -442,11 +465,11 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     moved = isolate(states_t, states_t1)                               # (M,)
     rows = torch.arange(len(moved))
     before, after = states_t[rows, moved].float(), states_t1[rows, moved].float()  # (M, D)
-    result = kmeans(torch.cat([before, after]), clusters, metrics["cluster"], seed=seed,
-                    max_iter=max_iter)
+    result = cluster(torch.cat([before, after]), clusters, state, seed=seed, max_iter=max_iter)
     graph = TransitionGraph(result.centroids, metrics["bind"])
     examples = (before, after) if edge_action in EXAMPLE_ACTIONS else (None, None)
-    graph.add(graph.bind(before), graph.bind(after), actions, *examples)
+    graph.add(bind(before, graph.centroids, graph.bind_metric), bind(after, graph.centroids, graph.bind_metric),
+              actions, *examples)
     graph.info = {"transitions": int(len(moved)), "clusters": int(clusters), "state": state,
                   "edge_action": edge_action,
                   "metrics": metrics, "seed": seed, "kmeans_inertia": result.inertia,
@@ -456,23 +479,39 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     return graph
 
 
-def graph_from_buffer(buffer: dict, perception, clusters: int, seed: int = 0,
-                      state: str | None = None, edge_action: str = "most_common") -> TransitionGraph:
-    """Build the graph of a buffer (`ncs_lite.data.load_buffer`) as `perception` sees it.
+def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
+                      episodes: int | None = None) -> TransitionGraph:
+    """The transition graph of the buffer at `data` (a directory, `ncs_lite.data.collect`) as
+    NCS reads it, with every graph field of `ncs` (an `NCSConfig`): the one path from a buffer
+    to a graph, used by `python -m ncs_lite graph`, the tables and notebooks 05-06.
 
-    `state` (the Table 3 column) defaults to the perception's own (`graph_state`, "mask" for
-    a perception without one); a different one is refused, since its metrics would not fit."""
-    own = getattr(perception, "graph_state", None)
-    if state is None:
-        state = own or "mask"
-    elif own is not None and state != own:
-        raise ValueError(f"state {state!r} does not match the perception's {own!r} states")
-    states_t, states_t1, actions, true_entity = perception.transitions(buffer)
-    graph = build_graph(states_t, states_t1, actions, clusters=clusters, state=state, seed=seed,
-                        true_entity=true_entity, edge_action=edge_action)
-    graph.info.update(slot_read(perception))
+    1. perception (`graph_perception`): `model`'s entities (`ncs.iterations`,
+       `ncs.graph_restarts`, `ncs.state`, `ncs.slot_position`, `num_slots` slots; None: the
+       model's K), or ground truth with `model` None;
+    2. the buffer's transitions as it reads them (`buffer_transitions`, cached), the first
+       `episodes` episodes of them (None: all);
+    3. `build_graph` with `ncs.clusters`, `ncs.state`, `ncs.seed` and `ncs.edge_action`
+       (None: the buffer's env's, EDGE_ACTION_BY_ENV).
+    The graph's info records the buffer, its env and manifest hash, the settings (`ncs`, with
+    the edge action resolved), how it read slot states (`slot_read`) and the episodes read.
+    """
+    manifest = load_manifest(data)
+    env = manifest["env"]["env"]
+    ncs = replace(ncs, edge_action=ncs.edge_action or EDGE_ACTION_BY_ENV.get(env, "most_common"))
+    total = manifest["episodes"]
+    episodes = total if episodes is None else episodes
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= total:
+        raise ValueError(f"episodes must be an integer in [1, {total}] (the graph buffer's), got {episodes!r}")
+    perception = graph_perception(ncs, model, num_slots=num_slots)
+    states_t, states_t1, actions, moved = buffer_transitions(perception, data)
+    keep = episodes * (len(actions) // total)             # transitions in episode order (M = E (T - 1))
+    graph = build_graph(states_t[:keep], states_t1[:keep], actions[:keep], clusters=ncs.clusters, state=ncs.state,
+                        seed=ncs.seed, true_entity=moved[:keep], edge_action=ncs.edge_action)
+    graph.info.update(env=env, data=relative_to_repo(data), manifest_sha256=manifest_hash(data), episodes=episodes,
+                      ncs=asdict(ncs), oracle=model is None, perception_state=perception.state,
+                      **slot_read(perception), **({} if num_slots is None else {"read_slots": num_slots}))
     return graph
 
 
-__all__ = ["CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "build_graph", "graph_from_buffer",
-           "isolate", "isolate_distance"]
+__all__ = ["BUILD_FIELDS", "CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
+           "graph_from_buffer", "isolate", "isolate_distance"]

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import SLOT_POSITIONS
+from ..config import SLOT_POSITIONS, NCSConfig
 from ..data import load_buffer
 from ..workers import map_jobs
 
@@ -62,6 +62,24 @@ def acting_slot_position(ncs, model) -> str:
     """How an agent reads slot states' positions: `ncs.slot_position`, or when it is None the
     default of the env the model was trained on (`default_slot_position`)."""
     return ncs.slot_position or default_slot_position(model)
+
+
+def scene_slots(model, num_objects: int, ncs=None) -> int:
+    """The slots a scene of `num_objects` objects is read with: `ncs.slots` when set (a fixed
+    count: the reader is not told how many objects there are), else one per object plus
+    `ncs.extra_slots` (the floor's), at least the model's trained K; slot states read from the
+    cells each slot wins (`slot_position` "assigned") get no more than that, since a spare slot
+    would win a few cells of a cube (SLOT_POSITION_BY_ENV). `ncs` None: NCSConfig()'s reading
+    (one slot per object and the floor's, at least K). Used by NCS, NF and MPC
+    (`evaluation.learned_perception`) and by every measure that reads held-out scenes."""
+    ncs = ncs or NCSConfig()
+    if ncs.slots is not None:
+        return ncs.slots
+    slots = num_objects + ncs.extra_slots
+    if ncs.state == "slot" and acting_slot_position(ncs, model) == "assigned":
+        return slots
+    trained = getattr(getattr(model, "cfg", None), "slots", None)     # stand-in models in tests declare no K
+    return max(trained.num_slots if trained is not None else 0, slots)
 
 
 def model_env(model) -> str | None:
@@ -245,7 +263,7 @@ class DSlatePerception:
 
 
 def graph_perception(ncs, model=None, num_slots: int | None = None):
-    """How a graph reads its buffer's frames (`python -m ncs_lite graph`): `model`'s entities
+    """How a graph reads its buffer's frames (`graph.graph_from_buffer`): `model`'s entities
     with `ncs.graph_restarts` restarts, its iterations, state and slot position and
     `num_slots` slots (None: the model's K), or, with no model, ground truth (the oracle's
     stand-in for `ncs.state`, ORACLE_STATES)."""

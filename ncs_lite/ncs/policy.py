@@ -1,15 +1,16 @@
 """Acting with the graph (Appendix A.3): align, select-constraint, act along the edge.
 
-Each step:
-1. **align** goal entities to current entities by type: the Hungarian algorithm
+Each step of `NCSAgent.act` is a function of this module:
+1. **align** (`align`) goal entities to current entities by type: the Hungarian algorithm
    (`scipy.optimize.linear_sum_assignment`) on Euclidean distances between types z.
-2. **select-constraint**: rank the aligned pairs by the isolate distance (cosine, Table 3,
-   for mask and slot states alike: `graph.isolate_distance`) between current and goal
-   states and sample one from the categorical distribution proportional to those distances
-   (the paper found sampling better than argmax).
-3. bind both states to nodes (`TransitionGraph.bind`, the graph's bind metric: cosine for
-   mask graphs, squared Euclidean for slot graphs) and take the action on the edge between
-   them; with no such edge take a random action.
+2. **select-constraint** (`select_constraint`): rank the aligned pairs by the isolate
+   distance (cosine, Table 3, for mask and slot states alike: `graph.isolate_distance`)
+   between current and goal states, bind both states to nodes (`TransitionGraph.bind`, the
+   graph's bind metric: cosine for mask graphs, squared Euclidean for slot graphs) and sample
+   one pair from the categorical distribution proportional to those distances (the paper
+   found sampling better than argmax).
+3. take the action on the edge between the selected pair's two nodes; with no such edge take
+   a random action.
 
 Two decisions the paper leaves open. **Entities without a counterpart** (`NCSConfig.align`):
 a partial goal's image shows only the constrained cubes, so the Hungarian matching (the
@@ -48,6 +49,8 @@ figure draws what the agent computed instead of computing it again.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
@@ -66,13 +69,24 @@ def type_distances(current_types: torch.Tensor, goal_types: torch.Tensor) -> tor
 NEAR_RATIO = 0.25
 
 
-def match(cost: np.ndarray, rule: str = "hungarian") -> tuple[np.ndarray, np.ndarray]:
-    """(goal index, current index) pairs of the Hungarian matching on `cost` (G, C). With rule
-    "mutual", only the pairs whose two entities are each other's nearest type are kept; with
-    "either", those in which at least one entity is the other's nearest type; with "near",
-    those whose type distance is below NEAR_RATIO x the median of `cost`."""
+class Alignment(NamedTuple):
+    """What `align` returns: pair j is goal entity goal_index[j] with current entity
+    current_index[j], (P,) int arrays each; type_distances (G, C) is the cost it matched on."""
+    goal_index: np.ndarray
+    current_index: np.ndarray
+    type_distances: torch.Tensor
+
+
+def align(current_types: torch.Tensor, goal_types: torch.Tensor, rule: str = "hungarian") -> Alignment:
+    """Pair goal entities (G, Dz) with current entities (C, Dz) by their types: the Hungarian
+    matching (`scipy.optimize.linear_sum_assignment`) on `type_distances`. With rule "mutual",
+    only the pairs whose two entities are each other's nearest type are kept; with "either",
+    those in which at least one entity is the other's nearest type; with "near", those whose
+    type distance is below NEAR_RATIO x the median of the cost matrix (module docstring)."""
     if rule not in ALIGN_RULES:
         raise ValueError(f"align rule must be one of {', '.join(map(repr, ALIGN_RULES))}, got {rule!r}")
+    distances = type_distances(current_types, goal_types)
+    cost = distances.numpy()
     g, c = linear_sum_assignment(cost)
     if rule == "near":
         keep = cost[g, c] <= NEAR_RATIO * np.median(cost)     # <=: identical types stay paired
@@ -81,17 +95,52 @@ def match(cost: np.ndarray, rule: str = "hungarian") -> tuple[np.ndarray, np.nda
         goal_nearest, current_nearest = cost.argmin(1)[g] == c, cost.argmin(0)[c] == g
         keep = goal_nearest & current_nearest if rule == "mutual" else goal_nearest | current_nearest
         g, c = g[keep], c[keep]
-    return g, c
-
-
-def align(current_types: torch.Tensor, goal_types: torch.Tensor, rule: str = "hungarian"):
-    """Hungarian matching on type distances (`match`). Returns (goal index, current index) arrays."""
-    return match(type_distances(current_types, goal_types).numpy(), rule)
+    return Alignment(g, c, distances)
 
 
 def constraint_distances(current_states: torch.Tensor, goal_states: torch.Tensor) -> torch.Tensor:
     """The isolate distance (cosine) between aligned current and goal states, (P,) >= 0."""
     return isolate_distance(current_states, goal_states).clamp(min=0)
+
+
+class Selection(NamedTuple):
+    """What `select_constraint` returns, for P aligned pairs:
+      raw_distances        (P,) isolate (cosine) distance of each pair's current and goal states
+      src_nodes, dst_nodes (P,) node of each pair's current and goal state (`TransitionGraph.bind`)
+      same_node            (P,) bool, pairs counted as satisfied (distance set to 0)
+      distances            (P,) the distances sampled from (raw, 0 where same_node)
+      probabilities        (P,) distances / their sum (all 0 when nothing is left)
+      selected, src, dst   the sampled pair and its two nodes (None when every distance is 0)
+    """
+    raw_distances: np.ndarray
+    src_nodes: np.ndarray
+    dst_nodes: np.ndarray
+    same_node: np.ndarray
+    distances: np.ndarray
+    probabilities: np.ndarray
+    selected: int | None
+    src: int | None
+    dst: int | None
+
+
+def select_constraint(current_states: torch.Tensor, goal_states: torch.Tensor, graph: TransitionGraph,
+                      rng: np.random.Generator, same_node: bool = True) -> Selection:
+    """Choose the constraint to act on among P aligned pairs (current states (P, D), goal
+    states (P, D)): rank the pairs by `constraint_distances`, bind both states of each pair to
+    the graph's nodes, count a pair whose two states share a node as satisfied (`same_node`;
+    off for edge actions read from states, module docstring), and sample one pair from the
+    categorical distribution proportional to the distances (`rng`, drawn from only when some
+    distance is left)."""
+    raw = constraint_distances(current_states, goal_states).numpy().astype(np.float64)
+    src, dst = graph.bind(torch.stack([current_states, goal_states])).numpy()     # (P,) each
+    same = (src == dst) & same_node
+    dist = np.where(same, 0.0, raw)           # same node: satisfied at the graph's resolution
+    total = dist.sum()
+    if total <= 0:
+        return Selection(raw, src, dst, same, dist, np.zeros_like(dist), None, None, None)
+    probabilities = dist / total
+    pick = int(rng.choice(len(dist), p=probabilities))
+    return Selection(raw, src, dst, same, dist, probabilities, pick, int(src[pick]), int(dst[pick]))
 
 
 class NCSAgent:
@@ -124,52 +173,41 @@ class NCSAgent:
         self._retry = None
 
     def act(self, obs, info) -> tuple[np.ndarray, bool]:
-        """The next action and whether it was a random fallback.
+        """The next action and whether it was a random fallback: `align`, `select_constraint`,
+        then the action on the edge between the selected pair's two nodes.
 
         Records the decision in `self.last` (P aligned pairs, pair j = goal entity
         goal_index[j] with current entity current_index[j]):
           current, goal        the Entities acted on (types, states, masks: the restart kept)
           type_distances       (G, C) align's cost matrix
           goal_index, current_index   (P,) the alignment
-          raw_distances        (P,) isolate (cosine) distance of each pair's states
-          src_nodes, dst_nodes (P,) node of each pair's current and goal state (graph.bind)
-          same_node            (P,) bool, pairs counted as satisfied (distance set to 0)
-          distances            (P,) the distances sampled from (raw, 0 where same_node)
-          probabilities        (P,) distances / their sum (all 0 when nothing is left)
-          selected, src, dst   the sampled pair and its two nodes (None if not sampled)
+          raw_distances, src_nodes, dst_nodes, same_node, distances, probabilities,
+          selected, src, dst   select_constraint's `Selection`
           action               the action returned
           fallback             None, or why the action is random
         """
         cur, goal = self.perception.current(obs, info), self._goal
-        cost = type_distances(cur.types, goal.types)
-        g_idx, c_idx = match(cost.numpy(), self.align)                # = align(cur.types, goal.types, self.align)
-        raw = constraint_distances(cur.states[c_idx], goal.states[g_idx]).numpy().astype(np.float64)
-        src, dst = self.graph.bind(torch.stack([cur.states[c_idx], goal.states[g_idx]])).numpy()  # (P,) each
+        g_idx, c_idx, cost = align(cur.types, goal.types, self.align)
         from_states = self.edge_action in EXAMPLE_ACTIONS
-        same = (src == dst) & (not from_states)
-        dist = np.where(same, 0.0, raw)           # same node: satisfied at the graph's resolution
-        total = dist.sum()
-        self.last = {"current": cur, "goal": goal, "type_distances": cost,
-                     "goal_index": g_idx, "current_index": c_idx, "raw_distances": raw,
-                     "src_nodes": src, "dst_nodes": dst, "same_node": same, "distances": dist,
-                     "probabilities": dist / total if total > 0 else np.zeros_like(dist),
-                     "selected": None, "src": None, "dst": None, "action": None, "fallback": None}
-        if total <= 0:
+        choice = select_constraint(cur.states[c_idx], goal.states[g_idx], self.graph, self.rng,
+                                   same_node=not from_states)
+        self.last = {"current": cur, "goal": goal, "type_distances": cost, "goal_index": g_idx,
+                     "current_index": c_idx, **choice._asdict(), "action": None, "fallback": None}
+        if choice.selected is None:
             return self._random("every constraint looks satisfied")
-        pick = int(self.rng.choice(len(dist), p=dist / total))
-        self.last.update(selected=pick, src=int(src[pick]), dst=int(dst[pick]))
+        pick = choice.selected
         if from_states:
             before, after = cur.states[c_idx[pick]], goal.states[g_idx[pick]]
-            key = (int(g_idx[pick]), int(src[pick]), int(dst[pick]))
+            key = (int(g_idx[pick]), choice.src, choice.dst)
             # the same pair on the same edge again: the last try missed (a move that worked
             # leaves another node behind, or lands within the goal's node short of the goal)
             rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
             self._retry = (key, rank)
             self.last["rank"] = rank
-            action = self.graph.action(src[pick], dst[pick], before, after, rank, basis=self._basis,
+            action = self.graph.action(choice.src, choice.dst, before, after, rank, basis=self._basis,
                                        mode=self.edge_action)
         else:
-            action = self.graph.action(src[pick], dst[pick])
+            action = self.graph.action(choice.src, choice.dst)
         if action is None:
             return self._random("no edge")
         self.last["action"] = action
