@@ -16,12 +16,13 @@ from .baselines import MPC_PRESETS, SetGraph
 from .baselines.nf import set_graph_from_transitions
 from .baselines.runs import load_trained_policy, policy_config, train_policy
 from .bench import run as run_benchmark
-from .config import DSlateConfig, apply_overrides, get_preset, ncs_config, parse_override, section_config, split_overrides, to_dict
+from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, DSlateConfig, apply_overrides, get_preset,
+                     ncs_config, parse_override, section_config, split_overrides, to_dict)
 from .data import collect, load_manifest, manifest_hash
 from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, check_graph_reading, evaluate,
                          summarize, write_csv)
 from .inference import load_dslate, read_checkpoint, shipped_asset
-from .ncs.graph import BUILD_FIELDS, CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, graph_from_buffer
+from .ncs.graph import BUILD_FIELDS, TransitionGraph, graph_from_buffer
 from .ncs.perception import buffer_transitions, graph_perception, slot_read
 from .training import EXTENDABLE, train
 from .utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo, sha256_file

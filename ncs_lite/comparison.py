@@ -16,11 +16,12 @@ from dataclasses import replace
 
 from .baselines import SetGraph, mpc_config, set_graph_from_transitions
 from .baselines.runs import load_trained_policy, obtain_policy
-from .config import ncs_config, parse_override
+from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, GRAPH_EPISODES_BY_ENV, STATE_BY_ENV, ncs_config,
+                     parse_override)
 from .data import cached_buffer
 from .evaluation import TaskSet, evaluate_methods
 from .inference import load_dslate, shipped_asset
-from .ncs.graph import (BUILD_FIELDS, CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph,
+from .ncs.graph import (BUILD_FIELDS, TransitionGraph,
                         graph_from_buffer)
 from .ncs.perception import buffer_transitions, graph_perception, scene_slots
 from .training import obtain_dslate
@@ -56,11 +57,6 @@ MPC_EPISODES = {"ci": 1, "reduced": 25, "paper": 100}
 # mask graph from the first 1,000 of its 5,000 episodes solved 0.92 / 0.82 of the 4 / 7-object
 # tasks (23 % / 36 % random fallbacks), from all 5,000 0.98 / 0.98 (6 % / 3 %)
 GRAPH_EPISODES = {"ci": 60, "reduced": 5000, "paper": 5000}
-# robogym-rearrange's graphs read 20,000 episodes: an edge's action must start within the 5 cm
-# pick threshold of the object and end within 5 cm of its goal, and continuous positions need
-# more exemplars per node than grid cells (the position oracle solved 0.78 of the 4-object
-# tasks from 5,000 episodes, 0.97 from 20,000; docs/HISTORY.md)
-GRAPH_EPISODES_BY_ENV = {"robogym-rearrange": 20000}
 
 
 def graph_episodes_of(preset: str, env: str) -> int:

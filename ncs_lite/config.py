@@ -555,6 +555,24 @@ ENV_OVERRIDES = {
     },
 }
 
+# How NCS reads each environment where the envs differ: every per-env default of the kit
+# (the dSLATE recipe's are ENV_OVERRIDES above). Why each value: docs/recipe.md, "How NCS
+# reads a model"; Table 3 gives the state kinds, Table 4 the clusters.
+CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}   # Table 4
+STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}                  # Table 3's columns
+EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout"}
+# slot-attention restarts: RESTARTS per video of the buffer when a graph is built
+# (NCSConfig.graph_restarts), RESTARTS_BY_ENV per image an agent acts on (NCSConfig.restarts)
+RESTARTS = 8
+RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8}
+# where a slot state's position comes from (NCSConfig.slot_position): the slot's soft attention
+# ("attention") or the cells it wins ("assigned"; measured on block-rearrange only)
+SLOT_POSITION = "attention"
+SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
+# the episodes of the 4-object buffer a graph reads (comparison.graph_episodes_of): continuous
+# positions need more exemplars per node than grid cells
+GRAPH_EPISODES_BY_ENV = {"robogym-rearrange": 20000}
+
 
 def get_preset(name: str, env: str = "block-rearrange") -> DSlateConfig:
     """A fresh copy of the named preset ('ci', 'reduced' or 'paper') for `env`: the preset

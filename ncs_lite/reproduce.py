@@ -28,7 +28,8 @@ import torch
 
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
                          run_comparison)
-from .config import NCSConfig, apply_overrides, from_dict, get_preset, ncs_config, parse_override, saved_config_diff, to_dict
+from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, NCSConfig, apply_overrides, from_dict,
+                     get_preset, ncs_config, parse_override, saved_config_diff, to_dict)
 from .data import cached_buffer, load_buffer, manifest_hash
 from .docs import write_docs
 from .evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
@@ -36,7 +37,7 @@ from .hyperparameters import AXES, fig9_table
 from .inference import (ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, SHIPPED_CHECKPOINT,
                         TRAIN_EPISODES, load_dslate, read_checkpoint)
 from .metrics import HELDOUT_SEED, factorization_scores, segmentation_scores
-from .ncs.graph import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TransitionGraph, graph_from_buffer
+from .ncs.graph import TransitionGraph, graph_from_buffer
 from .ncs.perception import acting_restarts
 from .stress import TASKS, stress_table
 from .sweeps import check_executor

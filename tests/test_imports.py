@@ -236,3 +236,16 @@ def test_the_graph_reads_relative_and_local_imports(tmp_path):
     assert graph == {"pkg": set(), "pkg.a": {"pkg.sub", "pkg.sub.b"}, "pkg.sub": {"pkg.sub.b"}, "pkg.sub.b": {"pkg.a"}}
     cycle = find_cycle(graph)
     assert cycle[0] == cycle[-1] == "pkg.a" and "pkg.sub.b" in cycle
+
+
+def test_per_environment_defaults_live_in_config_alone():
+    """Every table keyed by environment (`*_BY_ENV`, `ENV_OVERRIDES`) is defined in config.py,
+    so a new environment's defaults are added in one place."""
+    defined = {}
+    for module, path in package_modules().items():
+        for node in ast.parse(path.read_text()).body:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+            for t in targets:
+                if isinstance(t, ast.Name) and (t.id.endswith("_BY_ENV") or t.id == "ENV_OVERRIDES"):
+                    defined.setdefault(t.id, []).append(module)
+    assert defined and all(where == ["ncs_lite.config"] for where in defined.values()), defined

@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from ..cache import digest
-from ..config import EDGE_ACTIONS
+from ..config import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, EDGE_ACTIONS, STATE_BY_ENV
 from ..data import load_manifest, manifest_hash
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from ..utils import relative_to_repo
@@ -66,9 +66,6 @@ METRICS_BY_STATE = {
     "slot": {"isolate": "cosine", "cluster": "sqeuclidean", "bind": "sqeuclidean"},
 }
 BIND_METRICS = {m["bind"] for m in METRICS_BY_STATE.values()}
-CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}
-STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot"}     # Table 3's columns
-EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout"}
 EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' states (`examples`)
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label

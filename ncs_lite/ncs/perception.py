@@ -22,32 +22,11 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import SLOT_POSITIONS, NCSConfig
+from ..config import RESTARTS, RESTARTS_BY_ENV, SLOT_POSITION, SLOT_POSITION_BY_ENV, SLOT_POSITIONS, NCSConfig
 from ..data import load_buffer
 from ..workers import map_jobs
 
 STATE_GRID = 16
-# slot-attention restarts per image (DSlate.infer): slot attention is a local search and now
-# and then two slots share a cube; notebook 03 measures fg-ARI and absorbed cubes with one
-# start and with the restarts an agent reads a scene with. RESTARTS: a video of the buffer
-# when a graph is built (NCSConfig.graph_restarts). RESTARTS_BY_ENV: an image an agent acts
-# on (NCSConfig.restarts). More restarts raised NCS at 7 objects on every training seed of
-# block-rearrange (8 -> 32 restarts, same graphs, masks: 0.92 / 0.79 / 0.19 -> 1.00 / 0.95 /
-# 0.35; slot states 0.83 / 0.42 / 0.12 -> 0.94 / 0.59 / 0.23; a graph read with 32 restarts
-# gave the same, 0.36, for four times the buffer pass) and not on robogym-rearrange (learned
-# NCS at 4 objects 0.63 -> 0.57): README, "How many restarts".
-RESTARTS = 8
-RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8}
-# where a slot state's position features come from (NCSConfig.slot_position): "attention",
-# the model's own s (its soft attention's centroid and spread), or "assigned", the cells the
-# slot wins (`DSlate.assigned_states`), read with one slot per object plus the floor's (a
-# spare slot wins a few cells of a cube, a state of its own in the goal image and in the
-# scene: a pair that never looks satisfied). On block-rearrange the soft centroid of a cube
-# leans toward the other cubes, more so at 7 objects, and binds to another cell's node; the
-# README ("Where a slot is") gives NCS with both reads over the training seeds.
-# robogym-rearrange keeps "attention": the assigned read is not measured there.
-SLOT_POSITION = "attention"
-SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
 
 
 def acting_restarts(ncs, model) -> int:
