@@ -328,33 +328,37 @@ def clusters_table(checkpoint=None, clusters=(16, 20, 30, 40, 50), objects=(4, 7
     return {"rows": rows}
 
 
-def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced") -> None:
-    """Add one notebook's wall time to figures/notebook_times.json (`make reproduce` calls it
-    after each notebook; the notebooks' openings quote it). Other presets than `reduced`,
-    which owns figures/, write to build/figures/<preset>/ instead."""
+def _update_times(preset: str, change) -> None:
+    """Apply `change(times)` to notebook_times.json and write it back with its provenance.
+    Other presets than `reduced`, which owns figures/, write to build/figures/<preset>/."""
     folder = figures_dir() if preset == "reduced" else REPO_DIR / "build" / "figures" / preset
     path = folder / "notebook_times.json"
     times = json.loads(path.read_text()) if path.exists() else {}
-    times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
+    change(times)
     times.update(preset=preset, **provenance(path, allow_dirty=True))
     atomic_write_json(path, times)
     if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
         write_docs()
+
+
+def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced") -> None:
+    """Add one notebook's wall time to figures/notebook_times.json (`make reproduce` calls it
+    after each notebook; the notebooks' openings quote it)."""
+    def add(times):
+        times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
+
+    _update_times(preset, add)
 
 
 def record_run_time(seconds: float, venv_created: bool, cache_was_empty: bool, preset: str = "reduced") -> None:
     """Add the whole `make reproduce` run's wall time to notebook_times.json (`"run"`): from
     make's start to the last notebook, creating `.venv` included when this run created it;
     `cache_was_empty` says whether it started without `.cache/` (a fresh clone's case)."""
-    folder = figures_dir() if preset == "reduced" else REPO_DIR / "build" / "figures" / preset
-    path = folder / "notebook_times.json"
-    times = json.loads(path.read_text()) if path.exists() else {}
-    times["run"] = {"seconds": round(float(seconds), 1), "venv_created": bool(venv_created),
-                    "cache_was_empty": bool(cache_was_empty), "cores": os.cpu_count()}
-    times.update(preset=preset, **provenance(path, allow_dirty=True))
-    atomic_write_json(path, times)
-    if preset == "reduced" and figures_dir() == REPO_DIR / "figures":
-        write_docs()
+    def add(times):
+        times["run"] = {"seconds": round(float(seconds), 1), "venv_created": bool(venv_created),
+                        "cache_was_empty": bool(cache_was_empty), "cores": os.cpu_count()}
+
+    _update_times(preset, add)
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
