@@ -3,6 +3,7 @@
     env = ncs_lite.envs.make("block-rearrange", num_objects=4, goal="complete")
     env = gymnasium.make("ncs_lite/BlockRearrange-v0", num_objects=4)
     env = ncs_lite.envs.make("robogym-rearrange", num_objects=4)   # MuJoCo, imported on first use
+    env = ncs_lite.envs.make("block-stacking", num_objects=4)      # towers as goals
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from .objects import COLOUR_NAMES, COLOURS
 ENVIRONMENTS = {
     "block-rearrange": ("ncs_lite/BlockRearrange-v0", "ncs_lite.envs.block_rearrange:BlockRearrange"),
     "robogym-rearrange": ("ncs_lite/RobogymRearrange-v0", "ncs_lite.envs.robogym_rearrange:RobogymRearrange"),
+    "block-stacking": ("ncs_lite/BlockStacking-v0", "ncs_lite.envs.block_stacking:BlockStacking"),
 }
 
 for _env_id, _entry in ENVIRONMENTS.values():
@@ -38,7 +40,8 @@ def make(name: str, **kwargs) -> gym.Env:
 
 # each env's object colours: (names, RGB (n, 3) in [0, 1]); robogym-rearrange's come from
 # envs.objects, which needs no MuJoCo, so figures can name them without making the env
-PALETTES = {"block-rearrange": (COLOR_NAMES, PALETTE), "robogym-rearrange": (COLOUR_NAMES, COLOURS)}
+PALETTES = {"block-rearrange": (COLOR_NAMES, PALETTE), "robogym-rearrange": (COLOUR_NAMES, COLOURS),
+            "block-stacking": (COLOR_NAMES, PALETTE)}
 
 
 def palette(name: str) -> tuple[tuple[str, ...], np.ndarray]:
