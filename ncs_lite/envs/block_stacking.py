@@ -8,9 +8,13 @@ The arena is block-rearrange's: 4x4 cells 10 cm apart, 6 cm cubes in its eight c
 rendered by PyBullet's TinyRenderer in DIRECT mode. Stacks are at most `max_height` = 3
 cubes high, so a cube has 16 x 3 = 48 places (cell, level), the nearest grid to the 47
 graph nodes of Table 4. Heights must be visible, so the camera looks down from the front
-at `elevation` degrees instead of straight down: a cube one level up is drawn about 6 pixels
-higher in the 64-pixel image, a lit top face above a darker front face (a person and a model
-tell a 2-stack from a 3-stack by the height of the top cube).
+at `elevation` = 60 degrees instead of straight down: a cube one level up is drawn about 4
+pixels higher in the 64-pixel image, its lit top face above its darker front face (a person
+and a model tell a 2-stack from a 3-stack by the height of the top cube). From 60 degrees a
+2-stack never hides the front face of a cube in the row behind it; a 3-stack can, and a cube
+under another that is hidden so has no visible pixel (`info["masks"]` all False: about 1 in
+2,500 cubes of random 6-cube scenes, none with 4 cubes, which cannot make a 3-stack in front
+of a covered cube). Higher cameras hide less but draw levels closer together.
 
 Action `(w, dw)`: the Box of block-rearrange (z ignored). Semantics, in order:
   1. pick: the top cube of the stack whose cell centre is within `pick_threshold` of `w`
@@ -57,7 +61,7 @@ class BlockStackingConfig:
     cube: float = 0.06                # cube edge (m): also the height of a level
     pick_threshold: float = 0.05      # max |w - cell centre| (x, y) to pick a stack's top cube
     success_threshold: float = 0.05   # max |position - goal| (3-D) for a satisfied constraint
-    elevation: float = 55.0           # camera elevation above the floor (degrees)
+    elevation: float = 60.0           # camera elevation above the floor (degrees)
     image_size: int = 64
 
     def __post_init__(self):
