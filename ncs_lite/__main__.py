@@ -226,12 +226,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
     p.add_argument("--data", required=True, help="buffer directory (python -m ncs_lite collect)")
     p.add_argument("--clusters", type=int, default=None,
-                   help="nodes (= --set ncs.clusters; default Table 4's: 30 block-rearrange, 45 robogym-rearrange)")
+                   help="nodes (= --set ncs.clusters; default Table 4's: 30 block-rearrange, 45 robogym-rearrange, "
+                        "47 block-stacking)")
     p.add_argument("--seed", type=int, default=None, help="k-means seed (= --set ncs.seed)")
     p.add_argument("--state", default=None,
                    help="entity state, Table 3: mask | slot (= --set ncs.state; default Table 3's: mask "
-                        "block-rearrange, slot robogym-rearrange; the oracle's stand-in for slot "
-                        "states is the object's position)")
+                        "block-rearrange, slot robogym-rearrange and block-stacking; the oracle's "
+                        "stand-in for slot states is the object's position)")
     p.add_argument("--out", required=True)
     add_run_arguments(p)
     p.set_defaults(func=_graph)

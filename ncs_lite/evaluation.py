@@ -157,7 +157,8 @@ def run_episode(agent, env, seed: int, on_step=None) -> dict:
             on_step(agent, before, action, info, outcome)
     return {"success": int(terminated), "satisfied_fraction": satisfied_fraction(info), "steps": steps,
             "min_steps": info["min_steps"], "horizon": info["horizon"], "random_actions": randoms,
-            "noop_actions": outcomes["picked_nothing"] + outcomes["refused"], **outcomes}
+            "noop_actions": outcomes["picked_nothing"] + outcomes["refused"], **outcomes,
+            **getattr(agent, "episode_counts", dict)()}
 
 
 def evaluate(make_agent, tasks: TaskSet, method: str) -> list[dict]:

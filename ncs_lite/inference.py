@@ -57,11 +57,22 @@ ROBOGYM_POSITION_GRAPH = ASSETS / "graph_robogym_rearrange_oracle_position.pt"
 ROBOGYM_POLICIES = {"bc": ASSETS / "bc_robogym_rearrange_reduced.pt", "iql": ASSETS / "iql_robogym_rearrange_reduced.pt"}
 ROBOGYM_NF_GRAPH = ASSETS / "nf_graph_robogym_rearrange_reduced.pt"
 ROBOGYM_NF_ORACLE_GRAPH = ASSETS / "nf_graph_robogym_rearrange_oracle.pt"
+# block-stacking: its `reduced` checkpoint, graphs on slot states (learned s; the oracle's
+# positions) with dependencies, and its baselines (`make stacking-assets`)
+STACKING_CHECKPOINT = ASSETS / "dslate_block_stacking_reduced.pt"
+STACKING_SLOT_GRAPH = ASSETS / "graph_block_stacking_reduced_slot.pt"
+STACKING_POSITION_GRAPH = ASSETS / "graph_block_stacking_oracle_position.pt"
+STACKING_POLICIES = {"bc": ASSETS / "bc_block_stacking_reduced.pt", "iql": ASSETS / "iql_block_stacking_reduced.pt"}
+STACKING_NF_GRAPH = ASSETS / "nf_graph_block_stacking_reduced.pt"
+STACKING_NF_ORACLE_GRAPH = ASSETS / "nf_graph_block_stacking_oracle.pt"
 _SHIPPED = {
     "block-rearrange": {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES, "graph": _SHIPPED_GRAPHS},
     "robogym-rearrange": {"model": ROBOGYM_CHECKPOINT, "policy": ROBOGYM_POLICIES,
                           "graph": {("ncs", "slot"): ROBOGYM_SLOT_GRAPH, ("ncs-oracle", "slot"): ROBOGYM_POSITION_GRAPH,
                                     ("nf", "slot"): ROBOGYM_NF_GRAPH, ("nf-oracle", "slot"): ROBOGYM_NF_ORACLE_GRAPH}},
+    "block-stacking": {"model": STACKING_CHECKPOINT, "policy": STACKING_POLICIES,
+                       "graph": {("ncs", "slot"): STACKING_SLOT_GRAPH, ("ncs-oracle", "slot"): STACKING_POSITION_GRAPH,
+                                 ("nf", "slot"): STACKING_NF_GRAPH, ("nf-oracle", "slot"): STACKING_NF_ORACLE_GRAPH}},
 }
 SHIPPED_ENVS = tuple(_SHIPPED)
 SHIPPED_MODELS = {env: shipped["model"] for env, shipped in _SHIPPED.items()}

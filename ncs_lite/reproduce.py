@@ -28,7 +28,7 @@ import torch
 
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
                          run_comparison)
-from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, NCSConfig, apply_overrides, from_dict,
+from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TASKS_BY_ENV, NCSConfig, apply_overrides, from_dict,
                      get_preset, ncs_config, parse_override, saved_config_diff, to_dict)
 from .data import cached_buffer, load_buffer, manifest_hash
 from .docs import write_docs
@@ -215,7 +215,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             "objects": list(objects), "images": images, "clusters": base.clusters,
             "ncs": to_dict(base), "ncs_overrides": ncs_overrides, "summary": summary,
             "shipped_seed": shipped, "shipped_rule": "the lowest held-out reconstruction error (heldout_error)"}
-    write_table(f"seeds_{preset}" if block else f"seeds_{env.split('-')[0]}_{preset}", rows, meta, out_dir,
+    write_table(table_name("seeds", env, preset), rows, meta, out_dir,
                 allow_dirty)
     return {"rows": rows, "summary": summary, "shipped_seed": shipped}
 
@@ -361,20 +361,28 @@ def record_run_time(seconds: float, venv_created: bool, cache_was_empty: bool, p
     _update_times(preset, add)
 
 
+def table_name(table: str, env: str, preset: str) -> str:
+    """A table's file name under figures/tables/: `<table>_<preset>` on block-rearrange, with the
+    env's short name between on the others (`baselines_robogym_reduced`, `seeds_stacking_reduced`)."""
+    short = {"block-rearrange": "", "robogym-rearrange": "robogym_", "block-stacking": "stacking_"}[env]
+    return f"{table}_{short}{preset}"
+
+
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
                     out_dir=None, allow_dirty: bool = False, env: str = "block-rearrange", overrides=()) -> dict:
-    """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv):
-    one row per method, goal kind and object count (success, 95% Wilson interval, the mean share
+    """figures/tables/baselines_<preset>.csv (robogym-rearrange: baselines_robogym_<preset>.csv,
+    block-stacking: baselines_stacking_<preset>.csv; `table_name`): one row per method, goal
+    kind and object count (`comparison.TASKS_BY_ENV`) (success, 95% Wilson interval, the mean share
     of constraints satisfied with its interval, random-action share, mean steps), from the assets of
     `comparison_assets(preset, env=env, overrides=overrides)` (`ncs.*` overrides: how NCS builds its
     graphs and acts); the per-episode rows go beside it (`_episodes.csv`)."""
     episodes = episodes or EPISODES[preset]
     mpc_episodes = mpc_episodes or min(episodes, MPC_EPISODES[preset])
-    name = f"baselines_{preset}" if env == "block-rearrange" else f"baselines_{env.split('-')[0]}_{preset}"
+    name = table_name("baselines", env, preset)
     provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # refuse a dirty tree before the work
     start = time.perf_counter()
     assets = comparison_assets(preset, env=env, overrides=overrides)
-    rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes)
+    rows = run_comparison(assets, episodes=episodes, mpc_episodes=mpc_episodes, **TASKS_BY_ENV.get(env, {}))
     keep = ("method", "goal", "num_objects", "episodes", "success", "ci_low", "ci_high", "constraints",
             "constraints_ci_low", "constraints_ci_high", "random_fraction", "noop_fraction", "mean_steps")
     table = [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k in keep}

@@ -67,6 +67,7 @@ class BlockStackingConfig:
     success_threshold: float = 0.05   # max |position - goal| (3-D) for a satisfied constraint
     stack_probability: float = 0.7    # starts and goals: a cube goes on a stack (not an empty cell)
     elevation: float = 60.0           # camera elevation above the floor (degrees)
+    azimuth: float = 0.0              # camera direction around z (degrees; 0: from the front, -y)
     image_size: int = 64
 
     def __post_init__(self):
@@ -130,11 +131,11 @@ def min_moves(stacks: Stacks, goal: dict[int, tuple[int, int]], max_height: int)
     consistent (a move places or unplaces at most the cube it moves), so the first goal
     popped is optimal."""
     start = tuple(tuple(s) for s in stacks)
-    h0 = len(goal) - len(placed(start, goal))
-    frontier, best = [(h0, 0, start)], {start: 0}
+    frontier, best = [(len(goal) - len(placed(start, goal)), 0, start)], {start: 0}
     while frontier:
-        f, g, state = heapq.heappop(frontier)
-        if f - g == 0:
+        f, depth, state = heapq.heappop(frontier)     # ties: the deeper state first (depth is -g)
+        g = -depth
+        if f == g:
             return g
         if best.get(state, g) < g:
             continue
@@ -142,7 +143,7 @@ def min_moves(stacks: Stacks, goal: dict[int, tuple[int, int]], max_height: int)
             nxt = apply_move(state, src, dst)
             if best.get(nxt, g + 2) > g + 1:
                 best[nxt] = g + 1
-                heapq.heappush(frontier, (g + 1 + len(goal) - len(placed(nxt, goal)), g + 1, nxt))
+                heapq.heappush(frontier, (g + 1 + len(goal) - len(placed(nxt, goal)), -(g + 1), nxt))
     raise ValueError(f"no sequence of moves reaches the goal {goal} from {stacks}")
 
 
@@ -220,10 +221,11 @@ class BlockStacking(RearrangeEnv):
         dist, el = 3.0, np.radians(cfg.elevation)
         top = cfg.max_height * cfg.cube
         target = np.array([0.0, 0.0, top / 2])
-        eye = target + dist * np.array([0.0, -np.cos(el), np.sin(el)])
+        az = np.radians(cfg.azimuth)
+        eye = target + dist * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
         self._view = pb.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])
         # the scene's extent seen from the camera: the grid's depth foreshortened plus the towers
-        r = cfg.half_extent + 0.03
+        r = (cfg.half_extent + 0.03) * (abs(np.cos(az)) + abs(np.sin(az)))
         vertical = r * np.sin(el) + top / 2 * np.cos(el) + 0.01
         fov = float(np.degrees(2 * np.arctan(max(r, vertical) / (dist - r))))
         self._proj = pb.computeProjectionMatrixFOV(fov, 1.0, dist - 1.0, dist + 1.0)

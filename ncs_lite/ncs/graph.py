@@ -53,10 +53,11 @@ import numpy as np
 import torch
 
 from ..cache import digest
-from ..config import CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, EDGE_ACTIONS, STATE_BY_ENV
+from ..config import CLUSTERS_BY_ENV, DEPENDENCIES_BY_ENV, EDGE_ACTION_BY_ENV, EDGE_ACTIONS, STATE_BY_ENV
 from ..data import load_manifest, manifest_hash
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from ..utils import relative_to_repo
+from .dependencies import graph_reach, on_graph, support_relation
 from .kmeans import KMeansResult, assign, kmeans, pairwise_distances
 from .perception import buffer_transitions, graph_perception, slot_read
 
@@ -70,7 +71,7 @@ EXAMPLE_ACTIONS = EDGE_ACTIONS[1:]      # those that read the transitions' state
 READOUT_RIDGE = 1e-4                    # ridge of the read-out's least squares, x each feature's variance
 ACTION_DECIMALS = 4  # actions equal to 0.1 mm are merged into one edge label
 # the NCSConfig fields that only building a graph reads, never an agent acting on one
-BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed")
+BUILD_FIELDS = ("ncs.clusters", "ncs.graph_restarts", "ncs.seed", "ncs.dependencies")
 
 
 def isolate_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -220,6 +221,17 @@ class TransitionGraph:
             raise ValueError(f"edge_action {edge_action!r} reads the states of the graph's transitions, but this "
                              "graph kept none (built with edge_action 'most_common'); build it with "
                              "--set ncs.edge_action=nearest")
+
+    @property
+    def supports(self) -> list[list[int]] | None:
+        """supports[n]: the nodes under node n (`ncs.dependencies`), for a graph built with
+        dependencies; None otherwise (objects move independently)."""
+        return self.info.get("supports")
+
+    def locate(self, states: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """(nodes, on the graph) of states (..., D), for a graph built with dependencies
+        (`dependencies.on_graph`: the floor's slot lies off every node)."""
+        return on_graph(states, self.centroids, self.bind_metric, self.info["reach"])
 
     @property
     def num_nodes(self) -> int:
@@ -444,12 +456,15 @@ def _ridge(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.ndarray, *,
                 clusters: int, state: str = "mask", seed: int = 0, max_iter: int = 100,
-                true_entity: np.ndarray | None = None, edge_action: str = "most_common") -> TransitionGraph:
+                true_entity: np.ndarray | None = None, edge_action: str = "most_common",
+                dependencies: bool = False) -> TransitionGraph:
     """isolate -> cluster -> bind over M transitions of K entity states (M, K, D).
 
     actions (M, 6). `true_entity` (M,) optional: for each transition, the entity index k
     that truly moved (from ground truth); it gives the graph's coverage, the fraction of
-    isolated transitions that found the right entity.
+    isolated transitions that found the right entity. With `dependencies` the graph also
+    records its reach and each node's supports (`ncs.dependencies`), read from every entity of
+    every frame.
     """
     if state not in METRICS_BY_STATE:
         raise ValueError(f"state must be one of {sorted(METRICS_BY_STATE)}, got {state!r}")
@@ -473,6 +488,10 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
                   "kmeans_iterations": result.n_iter}
     if true_entity is not None:
         graph.info["coverage"] = float((moved.numpy() == np.asarray(true_entity)).mean())
+    if dependencies:
+        graph.info["reach"] = graph_reach(torch.cat([before, after]), graph.centroids, graph.bind_metric)
+        nodes, on = graph.locate(states_t)                                       # (M, K) each
+        graph.info["supports"] = support_relation(nodes, on, graph.num_nodes)
     return graph
 
 
@@ -487,14 +506,15 @@ def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
        model's K), or ground truth with `model` None;
     2. the buffer's transitions as it reads them (`buffer_transitions`, cached), the first
        `episodes` episodes of them (None: all);
-    3. `build_graph` with `ncs.clusters`, `ncs.state`, `ncs.seed` and `ncs.edge_action`
-       (None: the buffer's env's, EDGE_ACTION_BY_ENV).
+    3. `build_graph` with `ncs.clusters`, `ncs.state`, `ncs.seed`, `ncs.edge_action` and
+       `ncs.dependencies` (None: the buffer's env's, EDGE_ACTION_BY_ENV, DEPENDENCIES_BY_ENV).
     The graph's info records the buffer, its env and manifest hash, the settings (`ncs`, with
     the edge action resolved), how it read slot states (`slot_read`) and the episodes read.
     """
     manifest = load_manifest(data)
     env = manifest["env"]["env"]
-    ncs = replace(ncs, edge_action=ncs.edge_action or EDGE_ACTION_BY_ENV.get(env, "most_common"))
+    ncs = replace(ncs, edge_action=ncs.edge_action or EDGE_ACTION_BY_ENV.get(env, "most_common"),
+                  dependencies=DEPENDENCIES_BY_ENV.get(env, False) if ncs.dependencies is None else ncs.dependencies)
     total = manifest["episodes"]
     episodes = total if episodes is None else episodes
     if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= total:
@@ -503,7 +523,8 @@ def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
     states_t, states_t1, actions, moved = buffer_transitions(perception, data)
     keep = episodes * (len(actions) // total)             # transitions in episode order (M = E (T - 1))
     graph = build_graph(states_t[:keep], states_t1[:keep], actions[:keep], clusters=ncs.clusters, state=ncs.state,
-                        seed=ncs.seed, true_entity=moved[:keep], edge_action=ncs.edge_action)
+                        seed=ncs.seed, true_entity=moved[:keep], edge_action=ncs.edge_action,
+                        dependencies=ncs.dependencies)
     graph.info.update(env=env, data=relative_to_repo(data), manifest_sha256=manifest_hash(data), episodes=episodes,
                       ncs=asdict(ncs), oracle=model is None, perception_state=perception.state,
                       **slot_read(perception), **({} if num_slots is None else {"read_slots": num_slots}))

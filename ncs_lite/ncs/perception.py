@@ -94,6 +94,15 @@ def pool_masks(masks, grid: int = STATE_GRID) -> torch.Tensor:
     return pooled.reshape(*lead, grid * grid)
 
 
+def visible_states(states: torch.Tensor) -> torch.Tensor:
+    """Pooled ground-truth masks (..., D) with an object that shows no pixel (a cube hidden
+    under and behind stacks in block-stacking) given the uniform state: the cosine metrics are
+    undefined for a zero vector, and the uniform state lies far from every place, so
+    `ncs.dependencies` counts the object as off the graph. Visible objects are unchanged."""
+    hidden = states.sum(-1, keepdim=True) == 0
+    return torch.where(hidden, torch.full_like(states, 1.0 / states.shape[-1]), states)
+
+
 # The oracle's ground-truth stand-in for each kind of learned state (NCSConfig.state): the
 # segmentation mask for the attention mask, the object's position for the slot's state half
 ORACLE_STATES = {"mask": "mask", "slot": "position"}
@@ -131,7 +140,7 @@ class OraclePerception:
 
     def _states(self, masks: torch.Tensor, positions) -> torch.Tensor:
         if self.state == "mask":
-            return pool_masks(masks)
+            return visible_states(pool_masks(masks))
         return torch.as_tensor(np.asarray(positions)).float()
 
     def current(self, obs, info) -> Entities:
@@ -147,7 +156,7 @@ class OraclePerception:
     def transitions(self, buffer: dict):
         """Buffer -> (states_t, states_t1 (M, k, D), actions (M, 6), true moved entity (M,))."""
         if self.state == "mask":
-            states = pool_masks(buffer["masks"])                      # (E, T, k, 256)
+            states = visible_states(pool_masks(buffer["masks"]))      # (E, T, k, 256)
         else:
             states = torch.as_tensor(np.asarray(buffer["positions"])).float()   # (E, T, k, 3)
         return (states[:, :-1].flatten(0, 1), states[:, 1:].flatten(0, 1),

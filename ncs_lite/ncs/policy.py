@@ -55,7 +55,10 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
+from collections import Counter
+
 from ..config import ALIGN_RULES, NCSConfig
+from .dependencies import RULES, select_dependent
 from .graph import EXAMPLE_ACTIONS, TransitionGraph, isolate_distance
 
 
@@ -166,11 +169,18 @@ class NCSAgent:
         self._goal = None
         self.last = {}
         self._retry = None          # ((pair, src, dst), rank) of the latest action read from states
+        self.rules = Counter()      # with dependencies: how often each rule chose this episode's moves
 
     def reset(self, obs, info) -> None:
         self._goal = self.perception.goal(obs, info)   # the goal image is fixed per episode
         self.last = {}
         self._retry = None
+        self.rules = Counter()
+
+    def episode_counts(self) -> dict:
+        """This episode's count of each dependency rule ("rule_direct", ...; `ncs.dependencies`),
+        or {} on a graph without dependencies."""
+        return {} if self.graph.supports is None else {f"rule_{r}": self.rules[r] for r in RULES}
 
     def act(self, obs, info) -> tuple[np.ndarray, bool]:
         """The next action and whether it was a random fallback: `align`, `select_constraint`,
@@ -188,6 +198,8 @@ class NCSAgent:
         """
         cur, goal = self.perception.current(obs, info), self._goal
         g_idx, c_idx, cost = align(cur.types, goal.types, self.align)
+        if self.graph.supports is not None:
+            return self._act_dependent(cur, goal, g_idx, c_idx, cost)
         from_states = self.edge_action in EXAMPLE_ACTIONS
         choice = select_constraint(cur.states[c_idx], goal.states[g_idx], self.graph, self.rng,
                                    same_node=not from_states)
@@ -210,6 +222,27 @@ class NCSAgent:
             action = self.graph.action(choice.src, choice.dst)
         if action is None:
             return self._random("no edge")
+        self.last["action"] = action
+        return action, False
+
+    def _act_dependent(self, cur, goal, g_idx, c_idx, cost):
+        """`act` on a graph with dependencies (`dependencies.select_dependent`): a satisfiable
+        constraint along its edge or a shortest path's first edge, else a blocker cleared.
+        `self.last` adds rule, entity, target, in_place and satisfiable."""
+        cur_nodes, cur_on = self.graph.locate(cur.states)
+        goal_nodes, goal_on = self.graph.locate(goal.states)
+        raw = constraint_distances(cur.states[c_idx], goal.states[g_idx]).numpy().astype(np.float64)
+        d = select_dependent(cur_nodes, cur_on, goal_nodes, goal_on, g_idx, c_idx, raw, self.graph,
+                             self.graph.supports, self.rng)
+        self.last = {"current": cur, "goal": goal, "type_distances": cost, "goal_index": g_idx,
+                     "current_index": c_idx, "raw_distances": raw, "src_nodes": cur_nodes[c_idx],
+                     "dst_nodes": goal_nodes[g_idx], "selected": d.pair, "src": d.src, "dst": d.dst,
+                     "rule": d.rule, "entity": d.entity, "target": d.target, "in_place": d.in_place,
+                     "satisfiable": d.satisfiable, "action": None, "fallback": None}
+        if d.rule is None:
+            return self._random("every constraint looks satisfied, or no move is possible")
+        self.rules[d.rule] += 1
+        action = self.graph.action(d.src, d.dst)
         self.last["action"] = action
         return action, False
 
