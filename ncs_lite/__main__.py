@@ -312,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_graph_nf)
 
     p = sub.add_parser("reproduce",
-                              help="regenerate a README table (seeds, clusters, baselines, robogym, fig9, fig10, fig11)",
+                              help="regenerate a README table (seeds, clusters, baselines, robogym, stacking, fig9, fig10, "
+                                   "fig11)",
                               description=reproduce.__doc__.split("\n\n")[0])
     p.add_argument("table", choices=sorted(reproduce.TABLES))
     p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
@@ -320,9 +321,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
-    p.add_argument("--checkpoint", help="clusters, robogym: checkpoint (default: the shipped one)")
-    p.add_argument("--graph", help="robogym: the learned NCS graph on slot states (default: the shipped one)")
-    p.add_argument("--oracle-graph", help="robogym: the position oracle's graph (default: the shipped one)")
+    p.add_argument("--checkpoint", help="clusters, robogym, stacking: checkpoint (default: the shipped one)")
+    p.add_argument("--graph", help="robogym, stacking: the learned NCS graph on slot states (default: the shipped one)")
+    p.add_argument("--oracle-graph", help="robogym, stacking: the position oracle's graph (default: the shipped one)")
     p.add_argument("--episodes", type=int, default=None,
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50); fig10, fig11: "
                    "tasks per point (default: the preset's, ncs_lite.stress.TASKS)")
@@ -339,8 +340,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", default="block-rearrange", help="seeds: the environment to train on; baselines: "
                    "the environment (its shipped assets)")
     p.add_argument("--objects", type=int, nargs="+", default=None,
-                   help="robogym, seeds: object counts to evaluate (default: robogym 4 5 6 7, "
-                   "block-rearrange seeds 4 7)")
+                   help="robogym, stacking, seeds: object counts to evaluate (default: robogym 4 5 6 7, "
+                   "stacking 3 4 5 6, block-rearrange seeds 4 7)")
     p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
     add_run_arguments(p)
     p.set_defaults(func=_reproduce)

@@ -380,8 +380,8 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
         raise ValueError(f"method {method!r} needs a {kind.__name__} (python -m ncs_lite {command}), "
                          f"got a {type(graph).__name__}")
     check_graph_reading(graph, method, ncs, model)
-    extra = ({"align": ncs.align, "nearest_variance": ncs.nearest_variance, "edge_action": ncs.edge_action}
-             if agent is NCSAgent else {})
+    extra = ({"align": ncs.align, "nearest_variance": ncs.nearest_variance, "edge_action": ncs.edge_action,
+              "dependencies": ncs.dependencies} if agent is NCSAgent else {})
     if method.endswith("oracle"):
         return lambda env: agent(graph, OraclePerception(ORACLE_STATES[ncs.state]), env.action_space, seed, **extra)
     return lambda env: agent(graph, learned_perception(model, env.config.num_objects, ncs), env.action_space, seed,

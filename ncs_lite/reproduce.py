@@ -32,11 +32,12 @@ from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TASKS_BY
                      get_preset, ncs_config, parse_override, saved_config_diff, to_dict)
 from .data import cached_buffer, load_buffer, manifest_hash
 from .docs import write_docs
+from .envs.block_stacking import BlockStackingConfig
 from .evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
 from .hyperparameters import AXES, fig9_table
-from .inference import (ROBOGYM_CHECKPOINT, ROBOGYM_POSITION_GRAPH, ROBOGYM_SLOT_GRAPH, SHIPPED_CHECKPOINT,
-                        TRAIN_EPISODES, load_dslate, read_checkpoint)
+from .inference import SHIPPED_CHECKPOINT, TRAIN_EPISODES, load_dslate, read_checkpoint, shipped_asset
 from .metrics import HELDOUT_SEED, factorization_scores, segmentation_scores
+from .ncs.dependencies import RULES
 from .ncs.graph import TransitionGraph, graph_from_buffer
 from .ncs.perception import acting_restarts
 from .stress import TASKS, stress_table
@@ -397,22 +398,32 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
     return {"rows": table, "minutes": meta["minutes"]}
 
 
-# ---------------------------------------------------------------------- robogym-rearrange
-def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
-                  checkpoint=None, graph=None, oracle_graph=None, out_dir=None,
-                  allow_dirty: bool = False) -> dict:
-    """robogym-rearrange's shipped `reduced` assets (or the given files) measured: the
-    type/state split's metrics on 100 held-out episodes, fg-ARI at 4 objects with one start
-    and with NCS's restarts, and success of `ncs` (slot states, the shipped graph),
-    `ncs-oracle` (positions) and `random` on `episodes` seeded tasks per count, complete
-    goals (`<method>_<k>`) and partial goals (`<method>_partial_<k>`), horizon 4x, with the
-    share of constraints satisfied (`<method>_<k>_constraints`) and the share of steps that
-    placed an object at its goal and that picked nothing (`evaluation.step_outcome`). Each
+# ------------------------------------------------------- robogym-rearrange, block-stacking
+ENV_TABLES = {"robogym-rearrange": "robogym_reduced", "block-stacking": "stacking_reduced"}
+
+
+def env_table(env: str, episodes: int = 100, objects=None, images: int = 200, checkpoint=None, graph=None,
+              oracle_graph=None, out_dir=None, allow_dirty: bool = False) -> dict:
+    """An environment's shipped `reduced` assets (or the given files) measured, one row in
+    figures/tables/<ENV_TABLES[env]>.json: the type/state split's metrics on 100 held-out
+    episodes, fg-ARI at 4 objects with one start and with NCS's restarts, and success of `ncs`
+    (slot states, the shipped graph), `ncs-oracle` (positions) and `random` on `episodes`
+    seeded tasks per count (`objects`, default the env's comparison counts, TASKS_BY_ENV, else
+    4-7), on the env's goal kinds (complete `<method>_<k>`, partial `<method>_partial_<k>`),
+    horizon 4x, with the share of constraints satisfied (`<method>_<k>_constraints`) and the
+    share of steps that placed an object at its goal and that picked nothing
+    (`evaluation.step_outcome`). On an env with dependencies (block-stacking) the row adds both
+    NCS agents without the dependency rules (`<method>_independent_<k>`: the paper's NCS on the
+    same graph) and the share of decisions each rule made (`<method>_rule_<rule>_<k>`). Each
     evaluation is cached by its inputs (`evaluate_method`)."""
-    env = "robogym-rearrange"
-    paths = {"checkpoint": Path(checkpoint or ROBOGYM_CHECKPOINT), "graph": Path(graph or ROBOGYM_SLOT_GRAPH),
-             "oracle_graph": Path(oracle_graph or ROBOGYM_POSITION_GRAPH)}
-    provenance(table_dir(out_dir) / "robogym_reduced.json", allow_dirty)   # a dirty tree is refused first
+    name = ENV_TABLES[env]
+    tasks = TASKS_BY_ENV.get(env, {})
+    objects = tuple(objects or tasks.get("counts", (4, 5, 6, 7)))
+    goals = tasks.get("goals", ("complete", "partial"))
+    paths = {"checkpoint": Path(checkpoint or shipped_asset(env, "ncs", "model")),
+             "graph": Path(graph or shipped_asset(env, "ncs", "graph", "slot")),
+             "oracle_graph": Path(oracle_graph or shipped_asset(env, "ncs-oracle", "graph", "slot"))}
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)   # a dirty tree is refused first
     model = load_dslate(paths["checkpoint"])
     learned, oracle = TransitionGraph.load(paths["graph"]), TransitionGraph.load(paths["oracle_graph"])
     ncs = NCSConfig(clusters=learned.num_nodes, state="slot", edge_action=learned.edge_action)
@@ -425,28 +436,48 @@ def robogym_table(episodes: int = 100, objects=(4, 5, 6, 7), images: int = 200,
         row[f"absorbed_4_r{restarts}"] = round(seg["absorbed"], 4)
     row.update(graph_edges=learned.num_edges, coverage=round(learned.info.get("coverage", float("nan")), 4),
                oracle_graph_edges=oracle.num_edges)
-    methods = (("ncs", {"graph": learned, "model": model}), ("ncs-oracle", {"graph": oracle}), ("random", {}))
-    goals = ("complete", "partial")
-    jobs = [(method, TaskSet(env=env, num_objects=k, goal=goal, episodes=episodes, seed=0), {"ncs": ncs, **kwargs})
-            for goal in goals for k in objects for method, kwargs in methods]
-    cells = iter(evaluate_methods(jobs, desc="robogym evaluation"))     # worker processes, a loop's rows
+    methods = [("ncs", "ncs", {"graph": learned, "model": model, "ncs": ncs}),
+               ("ncs-oracle", "ncs-oracle", {"graph": oracle, "ncs": ncs}), ("random", "random", {"ncs": ncs})]
+    dependent = learned.supports is not None
+    if dependent:
+        independent = replace(ncs, dependencies=False)
+        methods += [(f"{label}-independent", method, {**kwargs, "ncs": independent, "label": f"{label}-independent"})
+                    for label, method, kwargs in methods[:2]]
+    jobs = [(method, TaskSet(env=env, num_objects=k, goal=goal, episodes=episodes, seed=0), kwargs)
+            for goal in goals for k in objects for _, method, kwargs in methods]
+    cells = iter(evaluate_methods(jobs, desc=f"{env} evaluation"))     # worker processes, a loop's rows
     for goal in goals:
         for k in objects:
-            for method, _ in methods:
-                s = summarize(next(cells))[0]
-                key = method.replace("-", "_") + ("" if goal == "complete" else "_partial")
+            for label, _, _ in methods:
+                rows = next(cells)
+                s = summarize(rows)[0]
+                key = label.replace("-", "_") + ("" if goal == "complete" else "_partial")
                 row[f"{key}_{k}"] = s["success"]
                 row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
                 _constraints(row, f"{key}_{k}", s)
                 for share in ("random", "noop", "placed", "picked_nothing"):
                     row[f"{key}_{share}_fraction_{k}"] = round(s[f"{share}_fraction"], 3)
+                if dependent and "rule_direct" in rows[0]:
+                    decisions = sum(r["steps"] for r in rows)
+                    for rule in RULES:
+                        row[f"{key}_rule_{rule}_{k}"] = round(sum(r[f"rule_{rule}"] for r in rows) / decisions, 3)
             print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
     meta = {"env": env, "episodes": episodes, "objects": list(objects), "goals": list(goals), "images": images,
             "ncs": to_dict(ncs),
-            **{name: relative_to_repo(p) for name, p in paths.items()},
-            **{f"{name}_sha256": sha256_file(p) for name, p in paths.items()}}
-    write_table("robogym_reduced", [row], meta, out_dir, allow_dirty)
+            **{name_: relative_to_repo(p) for name_, p in paths.items()},
+            **{f"{name_}_sha256": sha256_file(p) for name_, p in paths.items()}}
+    write_table(name, [row], meta, out_dir, allow_dirty)
     return {"rows": [row]}
+
+
+def robogym_table(*args, **kwargs) -> dict:
+    """robogym-rearrange's `env_table` (figures/tables/robogym_reduced.json)."""
+    return env_table("robogym-rearrange", *args, **kwargs)
+
+
+def stacking_table(*args, **kwargs) -> dict:
+    """block-stacking's `env_table` (figures/tables/stacking_reduced.json)."""
+    return env_table("block-stacking", *args, **kwargs)
 
 
 def fig10_table(*args, **kwargs) -> dict:
@@ -460,7 +491,7 @@ def fig11_table(*args, **kwargs) -> dict:
 
 
 TABLES = {"seeds": seeds_table, "clusters": clusters_table, "baselines": baselines_table,
-          "robogym": robogym_table, "fig9": fig9_table, "fig10": fig10_table, "fig11": fig11_table}
+          "robogym": robogym_table, "stacking": stacking_table, "fig9": fig9_table, "fig10": fig10_table, "fig11": fig11_table}
 STRESS_TABLES = ("fig10", "fig11")
 SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 
@@ -472,6 +503,7 @@ TABLE_FLAGS = {
     "clusters": ("checkpoint", "episodes", "overrides"),
     "baselines": ("preset", "episodes", "mpc_episodes", "env", "overrides"),
     "robogym": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
+    "stacking": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
     "fig9": ("preset", "executor", "sweep_folder", "overrides"),
     "fig10": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
     "fig11": ("preset", "executor", "sweep_folder", "episodes", "mpc_episodes"),
@@ -505,9 +537,10 @@ def check_table_args(name: str, args) -> None:
         # local: robogym_rearrange imports MuJoCo, slow to load and needed by robogym alone
         from .envs.robogym_rearrange import RobogymRearrangeConfig
 
+        config = BlockStackingConfig if name == "stacking" or args.env == "block-stacking" else RobogymRearrangeConfig
         for k in args.objects:
             try:
-                RobogymRearrangeConfig(num_objects=k)
+                config(num_objects=k)
             except ValueError as exc:
                 raise ValueError(f"--objects {k}: {exc}") from None
     if args.env not in STATE_BY_ENV:
@@ -527,10 +560,9 @@ def run_table(name: str, args) -> dict:
     if name == "baselines":
         return baselines_table(args.preset, args.episodes, args.mpc_episodes, out_dir=args.out_dir,
                                allow_dirty=args.allow_dirty, env=args.env, overrides=args.overrides)
-    if name == "robogym":
-        return robogym_table(args.episodes or 100, objects=tuple(args.objects or (4, 5, 6, 7)),
-                             checkpoint=args.checkpoint, graph=args.graph, oracle_graph=args.oracle_graph,
-                             out_dir=args.out_dir, allow_dirty=args.allow_dirty)
+    if name in ("robogym", "stacking"):
+        return TABLES[name](args.episodes or 100, objects=args.objects, checkpoint=args.checkpoint, graph=args.graph,
+                            oracle_graph=args.oracle_graph, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
     if name == "fig9":
         return fig9_table(args.preset, executor=args.executor, folder=args.sweep_folder, out_dir=args.out_dir,
                           allow_dirty=args.allow_dirty, overrides=args.overrides)

@@ -154,7 +154,7 @@ class NCSAgent:
 
     def __init__(self, graph: TransitionGraph, perception, action_space, seed: int = 0,
                  align: str = "near", nearest_variance: float = NCSConfig.nearest_variance,
-                 edge_action: str | None = None):
+                 edge_action: str | None = None, dependencies: bool | None = None):
         if getattr(perception, "graph_state", None) is not None:
             graph.check_state(perception.graph_state)
         if align not in ALIGN_RULES:
@@ -162,6 +162,8 @@ class NCSAgent:
         self.edge_action = edge_action or graph.edge_action     # how an edge becomes an action
         graph.check_edge_action(self.edge_action)
         self.align = align
+        # the dependency rules run on a graph that learned supports, unless switched off (False)
+        self.supports = None if dependencies is False else graph.supports
         self._basis = graph.moved_subspace(nearest_variance)   # edge actions from states compare along it
         self.graph, self.perception, self.action_space = graph, perception, action_space
         self.rng = np.random.default_rng(seed)
@@ -180,7 +182,7 @@ class NCSAgent:
     def episode_counts(self) -> dict:
         """This episode's count of each dependency rule ("rule_direct", ...; `ncs.dependencies`),
         or {} on a graph without dependencies."""
-        return {} if self.graph.supports is None else {f"rule_{r}": self.rules[r] for r in RULES}
+        return {} if self.supports is None else {f"rule_{r}": self.rules[r] for r in RULES}
 
     def act(self, obs, info) -> tuple[np.ndarray, bool]:
         """The next action and whether it was a random fallback: `align`, `select_constraint`,
@@ -198,7 +200,7 @@ class NCSAgent:
         """
         cur, goal = self.perception.current(obs, info), self._goal
         g_idx, c_idx, cost = align(cur.types, goal.types, self.align)
-        if self.graph.supports is not None:
+        if self.supports is not None:
             return self._act_dependent(cur, goal, g_idx, c_idx, cost)
         from_states = self.edge_action in EXAMPLE_ACTIONS
         choice = select_constraint(cur.states[c_idx], goal.states[g_idx], self.graph, self.rng,
@@ -233,7 +235,7 @@ class NCSAgent:
         goal_nodes, goal_on = self.graph.locate(goal.states)
         raw = constraint_distances(cur.states[c_idx], goal.states[g_idx]).numpy().astype(np.float64)
         d = select_dependent(cur_nodes, cur_on, goal_nodes, goal_on, g_idx, c_idx, raw, self.graph,
-                             self.graph.supports, self.rng)
+                             self.supports, self.rng)
         self.last = {"current": cur, "goal": goal, "type_distances": cost, "goal_index": g_idx,
                      "current_index": c_idx, "raw_distances": raw, "src_nodes": cur_nodes[c_idx],
                      "dst_nodes": goal_nodes[g_idx], "selected": d.pair, "src": d.src, "dst": d.dst,
