@@ -12,9 +12,10 @@ at `elevation` = 60 degrees instead of straight down: a cube one level up is dra
 pixels higher in the 64-pixel image, its lit top face above its darker front face (a person
 and a model tell a 2-stack from a 3-stack by the height of the top cube). From 60 degrees a
 2-stack never hides the front face of a cube in the row behind it; a 3-stack can, and a cube
-under another that is hidden so has no visible pixel (`info["masks"]` all False: about 1 in
-2,500 cubes of random 6-cube scenes, none with 4 cubes, which cannot make a 3-stack in front
-of a covered cube). Higher cameras hide less but draw levels closer together.
+under another that is hidden so has no visible pixel (`info["masks"]` all False: about 1 cube in
+45 of the starts and goals of 6-cube tasks, 1 in 250 with 5 cubes, none with 4, which cannot
+make a 3-stack in front of a covered cube). Higher cameras hide less behind stacks but draw
+levels closer together, and from straight above a covered cube is never seen.
 
 Action `(w, dw)`: the Box of block-rearrange (z ignored). Semantics, in order:
   1. pick: the top cube of the stack whose cell centre is within `pick_threshold` of `w`
@@ -67,7 +68,6 @@ class BlockStackingConfig:
     success_threshold: float = 0.05   # max |position - goal| (3-D) for a satisfied constraint
     stack_probability: float = 0.7    # starts and goals: a cube goes on a stack (not an empty cell)
     elevation: float = 60.0           # camera elevation above the floor (degrees)
-    azimuth: float = 0.0              # camera direction around z (degrees; 0: from the front, -y)
     image_size: int = 64
 
     def __post_init__(self):
@@ -81,6 +81,9 @@ class BlockStackingConfig:
             raise ValueError(f"stack_probability must be in [0, 1], got {self.stack_probability!r}")
         if not self.elevation <= 90:
             raise ValueError(f"elevation must be in (0, 90] degrees, got {self.elevation!r}")
+        if not self.success_threshold < self.cube:
+            raise ValueError(f"success_threshold must be below the cube's edge {self.cube} (a level), so a cube "
+                             f"one level off is not at its goal; got {self.success_threshold!r}")
         if self.num_objects > self.grid_size ** 2 * self.max_height - self.max_height:
             raise ValueError(f"{self.num_objects} cubes leave no room to move on a {self.grid_size}x"
                              f"{self.grid_size} grid of stacks of {self.max_height}")
@@ -114,14 +117,18 @@ def apply_move(stacks: Stacks, src: int, dst: int) -> Stacks:
 
 
 def placed(stacks: Stacks, goal: dict[int, tuple[int, int]]) -> set[int]:
-    """The constrained cubes in their final place: at their goal (cell, level) with every cube
-    below them placed too. Any other constrained cube must move at least once."""
+    """The constrained cubes in their final place: at their goal (cell, level) on cubes that can
+    all stay (none is constrained elsewhere, none holds another cube's goal place). Any other
+    constrained cube must move at least once. In a goal closed downwards (the env's) every cube
+    under a placed cube is placed; an unconstrained support is fine in any other goal."""
+    owner = {place: cube for cube, place in goal.items()}
     done = set()
     for cell, stack in enumerate(stacks):
         for level, cube in enumerate(stack):
-            if goal.get(cube) != (cell, level):
+            if goal.get(cube, (cell, level)) != (cell, level) or owner.get((cell, level), cube) != cube:
                 break
-            done.add(cube)
+            if cube in goal:
+                done.add(cube)
     return done
 
 
@@ -173,7 +180,8 @@ class BlockStacking(RearrangeEnv):
       positions (k, 3) with z = (level + 0.5) x cube, goal_positions (k, 3), colors, types,
       constrained (k,) bool, masks (k, H, W) visible pixels of each cube, goal_masks,
       satisfied (k,) bool, moved, picked, min_steps (exact), horizon, steps, is_success;
-      and levels (k,) int, each cube's level (0 on the floor), and goal_levels (k,).
+      and levels (k,) int, each cube's level (0 on the floor), and goal_levels (k,). An unconstrained
+      cube's goal position is its start, as in block-rearrange.
     """
 
     def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
@@ -200,6 +208,7 @@ class BlockStacking(RearrangeEnv):
         self._build_scene()
         self._stacks: Stacks = tuple(() for _ in self.cells)
         self._goal_place: dict[int, tuple[int, int]] = {}
+        self._goal_positions = np.zeros((cfg.num_objects, 3), np.float32)
         self._constrained = np.zeros(cfg.num_objects, bool)
         self._colors = PALETTE[: cfg.num_objects].copy()
         self._goal_image = self._image = None
@@ -221,11 +230,10 @@ class BlockStacking(RearrangeEnv):
         dist, el = 3.0, np.radians(cfg.elevation)
         top = cfg.max_height * cfg.cube
         target = np.array([0.0, 0.0, top / 2])
-        az = np.radians(cfg.azimuth)
-        eye = target + dist * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
+        eye = target + dist * np.array([0.0, -np.cos(el), np.sin(el)])
         self._view = pb.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])
         # the scene's extent seen from the camera: the grid's depth foreshortened plus the towers
-        r = (cfg.half_extent + 0.03) * (abs(np.cos(az)) + abs(np.sin(az)))
+        r = cfg.half_extent + 0.03
         vertical = r * np.sin(el) + top / 2 * np.cos(el) + 0.01
         fov = float(np.degrees(2 * np.arctan(max(r, vertical) / (dist - r))))
         self._proj = pb.computeProjectionMatrixFOV(fov, 1.0, dist - 1.0, dist + 1.0)
@@ -276,7 +284,6 @@ class BlockStacking(RearrangeEnv):
         self._constrained = np.zeros(k, bool)
         self._constrained[chosen] = True
         self._goal_place = {c: goal_at[c] for c in chosen}
-        self._goal_stacks = goal
         # the start: a random configuration in which no constrained cube is at its goal place
         # (every constrained cube must move, as in block-rearrange)
         while True:
@@ -285,6 +292,9 @@ class BlockStacking(RearrangeEnv):
             if all(at[c] != self._goal_place[c] for c in chosen):
                 break
         self._stacks = start
+        # an unconstrained cube's goal position is its start, as in block-rearrange (the goal
+        # image does not show it)
+        self._goal_positions = self._positions({**where(start), **self._goal_place})
         self.min_steps = min_moves(start, self._goal_place, cfg.max_height)
         self.horizon = horizon(cfg, self.min_steps)
         self._steps = 0
@@ -332,7 +342,7 @@ class BlockStacking(RearrangeEnv):
         self._image, masks = self._render()
         at = where(self._stacks)
         pos = self._positions(at)
-        goal = self._positions(where(self._goal_stacks))
+        goal = self._goal_positions.copy()
         satisfied = np.linalg.norm(pos - goal, axis=1) <= self.config.success_threshold
         info = {
             "positions": pos, "goal_positions": goal, "colors": self._colors.copy(),
@@ -341,7 +351,7 @@ class BlockStacking(RearrangeEnv):
             "picked": int(picked), "min_steps": self.min_steps, "horizon": self.horizon, "steps": self._steps,
             "is_success": bool(np.all(satisfied[self._constrained])),
             "levels": np.array([at[i][1] for i in range(len(pos))], np.int64),
-            "goal_levels": np.array([where(self._goal_stacks)[i][1] for i in range(len(pos))], np.int64),
+            "goal_levels": np.round(goal[:, 2] / self.config.cube - 0.5).astype(np.int64),
         }
         return {"image": self._image.copy(), "goal": self._goal_image.copy()}, info
 
