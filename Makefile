@@ -4,7 +4,8 @@ PY       := $(VENV)/bin/python
 STAMP    := $(VENV)/.installed
 PRESET   ?= reduced
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9][0-9]_*.ipynb))
-# notebooks with an `env` parameter, run on robogym-rearrange too (`reproduce`; tests/test_notebooks_robogym.py at ci)
+# notebooks with an `env` parameter, run on robogym-rearrange and block-stacking too (`reproduce`;
+# tests/test_notebooks_envs.py at ci)
 ENV_NOTEBOOKS := notebooks/04_dslate_training.ipynb notebooks/05_graph_construction.ipynb notebooks/06_action_selection.ipynb \
   notebooks/07_baselines.ipynb
 BUILD    := build
@@ -62,6 +63,15 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $${name}_robogym $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
+	# ... and on block-stacking: executed copies <name>_stacking.ipynb, figures in
+	# figures/<name>/block-stacking/, times as <name>_stacking (the suffixes: utils.NOTEBOOK_ENV_SUFFIX)
+	for nb in $(ENV_NOTEBOOKS); do \
+	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=block-stacking)"; start=$$(date +%s.%N); \
+	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
+	    -p env block-stacking $$nb $(BUILD)/notebooks/$${name}_stacking.ipynb || exit 1; \
+	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	    $${name}_stacking $$(date +%s.%N) $$start $(PRESET) || exit 1; \
+	done
 	# the whole run's time, when it ran every notebook (not NOTEBOOKS=... from the command line)
 	if [ "$(origin NOTEBOOKS)$(origin ENV_NOTEBOOKS)" = "filefile" ]; then \
 	  $(PY) -c "import os, sys; from ncs_lite.reproduce import record_run_time as r; now, start = map(float, sys.argv[1:3]); \
@@ -69,8 +79,9 @@ reproduce: $(STAMP)
 	    $$(date +%s.%N) $(MAKE_START) $(STAMP) $(CACHE_AT_START) $(PRESET) || exit 1; fi
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"
 
-# Unit tests + every notebook under nbmake at the `ci` preset (tests/test_notebooks_robogym.py runs
-# ENV_NOTEBOOKS once more with env=robogym-rearrange through papermill). Figures of the test run go
+# Unit tests + every notebook under nbmake at the `ci` preset (tests/test_notebooks_envs.py runs
+# ENV_NOTEBOOKS once more with env=robogym-rearrange and once with env=block-stacking through
+# papermill). Figures of the test run go
 # to build/ so the committed `reduced` figures stay as they are.
 test: $(STAMP)
 	NCS_LITE_PRESET=ci NCS_LITE_PROGRESS=0 NCS_LITE_FIGURES=$(BUILD)/test-figures \
@@ -94,6 +105,7 @@ clusters: $(STAMP)
 baselines: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env robogym-rearrange
+	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce baselines --env block-stacking --episodes 50 --mpc-episodes 25
 
 # Appendix D's Figs. 9 (NCS against its hyperparameters), 10 (success against the interaction horizon) and 11 (against action noise) on
 # robogym-rearrange's shipped assets; fig11 reuses fig10's cached cells. EXECUTOR=submitit runs the

@@ -29,7 +29,7 @@ import jinja2
 import mistune
 from latex2mathml.converter import convert
 
-from .utils import REPO_DIR, relative_to_repo
+from .utils import NOTEBOOK_ENV_SUFFIX, REPO_DIR, relative_to_repo, split_notebook_run
 
 DOCS = "docs"
 EXECUTED = REPO_DIR / "build" / "notebooks"      # where `make reproduce` writes the executed copies
@@ -208,6 +208,13 @@ def executed_note(nb_path: Path | None, name: str) -> str:
     return f"Executed by papermill ({html.escape(shown)}): the outputs below are that run's."
 
 
+def run_title(stem: str) -> str:
+    """A notebook's name in the book's menu: "04_dslate_training", or for its run on another env
+    "04_dslate_training (robogym)", "04_dslate_training (stacking)"."""
+    name, env = split_notebook_run(stem)
+    return stem if env == "block-rearrange" else f"{name} ({NOTEBOOK_ENV_SUFFIX[env].lstrip('_')})"
+
+
 def build(out: Path = OUT, executed: Path = EXECUTED) -> dict[str, str]:
     """Write the site into `out`; return {page: what it was made from}. FileNotFoundError
     (one line naming the command that makes them) when `executed` holds no executed notebook."""
@@ -216,13 +223,15 @@ def build(out: Path = OUT, executed: Path = EXECUTED) -> dict[str, str]:
     if not any(m.stem in have for m in masters):
         raise FileNotFoundError(f"no executed notebooks in {relative_to_repo(executed)}/: {MAKES_THEM} writes them")
     notebooks = [(f"notebooks/{m.stem}.html", m.stem, have.get(m.stem)) for m in masters]
+    # the runs of notebooks 04-07 on the other envs: <name>_robogym, <name>_stacking (`utils.notebook_run`)
+    runs = {stem: split_notebook_run(stem) for stem in have}
     notebooks += [(f"notebooks/{stem}.html", stem, p) for stem, p in have.items()
-                  if stem.endswith("_robogym") and stem[:-len("_robogym")] in {m.stem for m in masters}]
+                  if runs[stem][1] != "block-rearrange" and runs[stem][0] in {m.stem for m in masters}]
     docs = sorted((REPO_DIR / DOCS).glob("*.md"))
     texts = {"README.md": (REPO_DIR / "README.md").read_text(encoding="utf-8")}
     texts.update({f"{DOCS}/{d.name}": d.read_text(encoding="utf-8") for d in docs})
     listed = [("index.html", "ncs-lite")] + [(page_of(s), title_of(t, s)) for s, t in texts.items() if s != "README.md"]
-    listed += [(page, stem.replace("_robogym", " (robogym)")) for page, stem, _ in notebooks]
+    listed += [(page, run_title(stem)) for page, stem, _ in notebooks]
     pages = {p for p, _ in listed}
 
     if out == REPO_DIR or out in REPO_DIR.parents or (out.is_dir() and any(out.iterdir())

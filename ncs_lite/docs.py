@@ -31,16 +31,23 @@ from pathlib import Path
 
 from .config import STRESS_TASKS, NCSConfig
 from .envs.block_rearrange import BlockRearrangeConfig
-from .utils import REPO_DIR, atomic_write_text
+from .utils import NOTEBOOK_ENV_SUFFIX, REPO_DIR, atomic_write_text, split_notebook_run
 
 __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "readme_blocks",
            "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
 
 BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
+# the order of the environments in the headline table
+HEADLINE_ENVS = (*BLOCK_ENVS, "block-stacking")
+# the envs whose main comparison the README shows in full (the others': docs/results.md)
+README_COMPARISONS = ("block-rearrange", "robogym-rearrange")
+# the envs `make reproduce` runs notebooks on, in the order of the times' columns (an env beyond
+# BLOCK_ENVS only once it has a time: `_timed_envs`)
+NOTEBOOK_ENVS = tuple(NOTEBOOK_ENV_SUFFIX)
 # `reproduce`'s defaults (its options in ncs_lite/__main__.py, and `reproduce.seeds_table`): a
 # command names an argument only where its table differs from them
 DEFAULT_EPISODES = 100
-DEFAULT_OBJECTS = {"block-rearrange": [4, 7], "robogym-rearrange": [4, 5, 6, 7]}
+DEFAULT_OBJECTS = {"block-rearrange": [4, 7], "robogym-rearrange": [4, 5, 6, 7], "block-stacking": [3, 4, 5, 6]}
 DEFAULT_PRESET = "reduced"
 SHIPPED_ASSETS = "ncs_lite/assets/"    # a table read from a shipped asset used the command's default
 # NCSConfig fields that `reproduce seeds` sets from the env (Tables 3-4): never overrides
@@ -73,6 +80,13 @@ COLUMNS = [
     (r"ncs_slot_(?P<k>\d+)", "`ncs` on slot states, {k} objects", "rate", "high"),
     (r"ncs_oracle_(?P<k>\d+)", "`ncs-oracle` (ground truth), {k} objects", "rate", "high"),
     (r"random_(?P<k>\d+)", "`random`, {k} objects", "rate", None),
+    # block-stacking (`reproduce stacking`): both NCS agents without the dependency rules
+    (r"ncs_independent_(?P<k>\d+)", "`ncs` without the dependency rules, {k} objects", "rate", "high"),
+    (r"ncs_oracle_independent_(?P<k>\d+)", "`ncs-oracle` without the dependency rules, {k} objects", "rate", "high"),
+    (r"ncs_rule_(?P<rule>direct|path|clear)_(?P<k>\d+)", "decisions by the rule {rule}, `ncs`, {k} objects", "pct",
+     None),
+    (r"ncs_oracle_rule_(?P<rule>direct|path|clear)_(?P<k>\d+)", "decisions by the rule {rule}, `ncs-oracle`, "
+     "{k} objects", "pct", None),
     # the second measure (`evaluation.summarize`'s `constraints`): not in the headline, which
     # gives the share of tasks solved
     (r"ncs_(?P<k>\d+)_constraints", "`ncs` on {state}, share of constraints satisfied, {k} objects", "rate", "high"),
@@ -122,7 +136,7 @@ def _column(name: str):
     for order, (pattern, label, kind, better) in enumerate(_COLUMNS):
         m = pattern.match(name)
         if m:
-            numbers = tuple(int(v) for v in m.groupdict().values() if v is not None)
+            numbers = tuple(int(v) for v in m.groupdict().values() if v is not None and v.isdigit())
             return order, numbers, label, m.groupdict(), kind, better
     return None
 
@@ -130,7 +144,7 @@ def _column(name: str):
 def _label(template: str, groups: dict, state: str) -> str:
     r = groups.get("r")
     starts = "" if r is None else ("one start" if r == "1" else f"{r} restarts")
-    return template.format(k=groups.get("k"), starts=starts, state=state)
+    return template.format(k=groups.get("k"), starts=starts, state=state, rule=groups.get("rule"))
 
 
 # --------------------------------------------------------------------------- numbers
@@ -285,15 +299,15 @@ def table_command(path: str, table: dict) -> str:
             args += ["--checkpoint", table["checkpoint"]]
         if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
             args += ["--episodes", str(table["episodes"])]
-    elif name.startswith("robogym_"):
-        args = ["reproduce", "robogym"]
+    elif name.startswith(("robogym_", "stacking_")):
+        args = ["reproduce", name.split("_")[0]]
         for key, flag in (("checkpoint", "--checkpoint"), ("graph", "--graph"), ("oracle_graph", "--oracle-graph")):
             if not str(table.get(key, SHIPPED_ASSETS)).startswith(SHIPPED_ASSETS):
                 args += [flag, table[key]]
         if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
             args += ["--episodes", str(table["episodes"])]
         objects = table.get("objects")
-        if objects and list(objects) != DEFAULT_OBJECTS["robogym-rearrange"]:
+        if objects and list(objects) != DEFAULT_OBJECTS[env]:
             args += ["--objects", *map(str, objects)]
     elif name.startswith("fig9_"):
         args = ["reproduce", "fig9"] + (["--preset", preset] if preset != DEFAULT_PRESET else [])
@@ -456,11 +470,16 @@ def _describe(path: str, table: dict) -> str:
     name = table.get("table") or Path(path).stem
     folder = Path(path).parent.as_posix()
     if name.startswith("baselines_"):
-        what = "The main comparison: every method on the same seeded tasks, complete and partial goals."
+        what = ("The main comparison: every method on the same seeded tasks, complete and partial goals"
+                + (" (block-stacking: complete goals, 3-6 cubes)." if _env(table) == "block-stacking" else "."))
     elif name == "clusters":
         what = "NCS success against the number of graph nodes (the paper's Fig. 9, left) on the shipped checkpoint."
     elif name.startswith("robogym_"):
         what = "The shipped robogym-rearrange checkpoint and graphs measured: the type/state split, fg-ARI and success."
+    elif name.startswith("stacking_"):
+        what = ("The shipped block-stacking checkpoint and graphs measured: the type/state split, fg-ARI, success "
+                "with and without the dependency rules (the kit's extension of Appendix F), and how often each "
+                "rule chose a move.")
     elif name.startswith("fig9_"):
         what = ("The paper's Fig. 9 (Appendix D.1): NCS against its number of clusters, the buffer episodes its "
                 "graph reads and the slots it reads a scene with, 4 objects, complete goals; the claims with our "
@@ -564,14 +583,15 @@ def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
     every seed shares, such as the oracle's, with its interval), or, for an environment
     without a seeds table yet, one training seed's table (`reproduce robogym`)."""
     seeded = {_env(t) for _, t in _top(tables, "seeds_")}
-    sources = _top(tables, "seeds_") + [(p, t) for p, t in _top(tables, "robogym_") if _env(t) not in seeded]
+    sources = _top(tables, "seeds_") + [(p, t) for p, t in _top(tables, "robogym_") + _top(tables, "stacking_")
+                                        if _env(t) not in seeded]
     found: dict[tuple[str, str], tuple[dict, str]] = {}
     for path, table in sources:
         rows = table["rows"]
         for column, label, kind, better in _measure_columns(table):
             numbers = _column(column)[1]
-            if kind != "rate" or not numbers or column.endswith("_constraints"):
-                continue
+            if kind != "rate" or not numbers or column.endswith("_constraints") or "_independent_" in column:
+                continue          # the rows without the dependency rules: docs/results.md
             label = label.rsplit(",", 1)[0]           # "`ncs` on masks, 4 objects" -> "`ncs` on masks"
             learned = label.startswith("`ncs` on")   # a trained model's success; the others are references
             if learned:
@@ -584,7 +604,7 @@ def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
                 cell = _cell(rows[0], column, kind)
             cells, _ = found.setdefault((_env(table), label), ({}, table_command(path, table)))
             cells[numbers[0]] = cell
-    order = {e: i for i, e in enumerate(BLOCK_ENVS)}
+    order = {e: i for i, e in enumerate(HEADLINE_ENVS)}
     keys = sorted(found, key=lambda key: order.get(key[0], len(order)))     # stable: table order within an env
     return [(env, label, *found[env, label]) for env, label in keys]
 
@@ -634,6 +654,10 @@ def render_results_block(tables: dict) -> str:
                 for env, label, cells, command in head]
         lines += _markdown(["result", *(f"{k} objects" for k in counts), "written by"], body) + [""]
     for path, table in _top(tables, "baselines_"):
+        if _env(table) not in README_COMPARISONS:
+            lines += [f"**Main comparison, {_env(table)}**: [docs/results.md](docs/results.md) "
+                      f"(`{table_command(path, table)}`).", ""]
+            continue
         mpc = table.get("mpc_episodes")
         measured = any("constraints" in r for r in table["rows"])
         lines += [f"**Main comparison, {_env(table)}**, complete goals, {table.get('episodes')} tasks per cell"
@@ -651,7 +675,8 @@ def render_results_block(tables: dict) -> str:
                   "[docs/results.md](docs/results.md), drawn by notebooks 08-10):", ""]
         lines += _markdown(["figure", "the paper says", "we measure", "verdict"], claims) + [""]
     used = _top(tables, "seeds_") + _top(tables, "baselines_") + [
-        (p, t) for p, t in _top(tables, "robogym_") if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}] + [
+        (p, t) for p, t in _top(tables, "robogym_") + _top(tables, "stacking_")
+        if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}] + [
         (p, t) for figure in FIGURE_TABLES for p, t in _top(tables, figure + "_")]
     commits = {t.get("commit") for _, t in used}
     dirty = [f"`{Path(p).stem}`" for p, t in used if t.get("dirty")]
@@ -667,13 +692,19 @@ def render_results_block(tables: dict) -> str:
 
 
 def _split_times(times: dict) -> dict[str, dict[str, float]]:
-    """{notebook: {env: seconds}} from notebook_times.json's "<name>" / "<name>_robogym"."""
+    """{notebook: {env: seconds}} from notebook_times.json's "<name>", "<name>_robogym" and
+    "<name>_stacking" (`utils.split_notebook_run`)."""
     out: dict[str, dict[str, float]] = {}
     for key, seconds in (times.get("seconds") or {}).items():
-        robogym = key.endswith("_robogym")
-        name, env = (key[:-len("_robogym")], "robogym-rearrange") if robogym else (key, "block-rearrange")
+        name, env = split_notebook_run(key)
         out.setdefault(name, {})[env] = float(seconds)
     return out
+
+
+def _timed_envs(per: dict[str, dict[str, float]]) -> tuple[str, ...]:
+    """The envs of the times' columns: block-rearrange and robogym-rearrange always, the others
+    once some notebook has a time on them."""
+    return tuple(e for e in NOTEBOOK_ENVS if e in BLOCK_ENVS or any(e in t for t in per.values()))
 
 
 def render_times_block(times: dict) -> str:
@@ -681,13 +712,14 @@ def render_times_block(times: dict) -> str:
     per = _split_times(times)
     if not per:
         return "`make reproduce` has not recorded its times yet (`figures/notebook_times.json`)."
-    by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in BLOCK_ENVS}
+    by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in _timed_envs(per)}
     total = sum(by_env.values())
     preset = times.get("preset", DEFAULT_PRESET)
     text = (f"The last `make reproduce` ran the notebooks in {format_seconds(total)} at `{preset}` "
             f"({format_seconds(by_env['block-rearrange'])} on block-rearrange, "
-            f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange; "
-            "one thread per process, `figures/notebook_times.json`)")
+            f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange"
+            + "".join(f", {format_seconds(by_env[env])} on {env}" for env in by_env if env not in BLOCK_ENVS)
+            + "; one thread per process, `figures/notebook_times.json`)")
     run = times.get("run")
     if not run:
         return text + "; creating `.venv` the first time comes on top."
@@ -704,8 +736,9 @@ def render_notebooks_block(times: dict, titles: dict) -> str:
     for name, title in titles.items():
         t = per.get(name, {})
         took = format_seconds(t["block-rearrange"]) if "block-rearrange" in t else "not measured yet"
-        if "robogym-rearrange" in t:
-            took += f"; on robogym-rearrange {format_seconds(t['robogym-rearrange'])}"
+        for env in NOTEBOOK_ENVS[1:]:
+            if env in t:
+                took += f"; on {env} {format_seconds(t[env])}"
         lines.append(f"- [`{name}`](notebooks/{name}.ipynb): {title} ({took})")
     return "\n".join(lines) if lines else "(no notebooks found)"
 
@@ -747,10 +780,11 @@ def render_results_md(tables: dict, times: dict, titles: dict) -> str:
                      + (f", commit {times['commit']}" if times.get("commit") else "")
                      + (" (dirty tree)" if times.get("dirty") else "") + ":")
         lines.append("")
-        body = [[f"`{name}`", *(format_seconds(t[e]) if e in t else "–" for e in BLOCK_ENVS)]
+        envs = _timed_envs(per)
+        body = [[f"`{name}`", *(format_seconds(t[e]) if e in t else "–" for e in envs)]
                 for name, t in per.items()]
-        body.append(["all", *(format_seconds(sum(t.get(e, 0.0) for t in per.values())) for e in BLOCK_ENVS)])
-        lines += _markdown(["notebook", *BLOCK_ENVS], body)
+        body.append(["all", *(format_seconds(sum(t.get(e, 0.0) for t in per.values())) for e in envs)])
+        lines += _markdown(["notebook", *envs], body)
     else:
         lines.append("Not recorded yet (`make reproduce` writes `figures/notebook_times.json`).")
     lines.append("")

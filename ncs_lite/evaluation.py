@@ -272,9 +272,12 @@ def summarize(rows: list[dict]) -> list[dict]:
 
 
 def write_csv(rows: list[dict], path: str | Path) -> Path:
-    """Tidy CSV, one row per episode (atomic write)."""
+    """Tidy CSV, one row per episode (atomic write). The columns are every row's, in the order
+    they first appear: an agent with the dependency rules adds its `rule_*` counts
+    (`NCSAgent.episode_counts`), left empty in the rows of the other methods."""
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else list(COLUMNS))
+    fields = list(dict.fromkeys(key for row in rows for key in row)) if rows else list(COLUMNS)
+    writer = csv.DictWriter(buf, fieldnames=fields)
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(path, buf.getvalue())

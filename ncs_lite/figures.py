@@ -14,8 +14,8 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.colors import BoundaryNorm, ListedColormap
 
-from .utils import (REPO_DIR, atomic_path, atomic_write_json, figures_dir, package_versions, provenance,
-                    relative_to_repo)
+from .utils import (REPO_DIR, atomic_path, atomic_write_json, figures_dir, notebook_run, package_versions,
+                    provenance, relative_to_repo)
 
 PRESETS = ("ci", "reduced", "paper")
 
@@ -169,11 +169,13 @@ def token_colours(vocab_size: int, seed: int = 0):
     return ListedColormap(colours), BoundaryNorm(np.arange(vocab_size + 1) - 0.5, vocab_size)
 
 
-def measured_time(notebook: str) -> str:
-    """How long `notebook` took at `reduced`, from figures/notebook_times.json (written by
-    `make reproduce`: {"seconds": {"NN_name": s, ...}, "commit": ..., "dirty": ...}; a flat
+def measured_time(notebook: str, env: str = "block-rearrange") -> str:
+    """How long `notebook` took at `reduced` on `env`, from figures/notebook_times.json (written
+    by `make reproduce`: {"seconds": {"NN_name": s, "NN_name_robogym": s, ...}, "commit": ...,
+    "dirty": ...}, a run on another env under `utils.notebook_run`'s name; a flat
     {"NN_name": s, ...} is read too), as a sentence for the notebook's setup cell, or
     "not measured yet" when the file or the entry is missing."""
+    notebook = notebook_run(notebook, env)
     path = REPO_DIR / "figures" / "notebook_times.json"
     try:
         times = json.loads(path.read_text())

@@ -365,6 +365,30 @@ def _repo_path(variable: str, default: Path) -> Path:
     return path if path.is_absolute() else REPO_DIR / path
 
 
+# notebooks 04-07 run once more on each other env (`make reproduce`, `env` parameter): that run's
+# executed copy (build/notebooks/<run>.ipynb) and time (figures/notebook_times.json) are named
+# <notebook><suffix>; its figures go to figures/<notebook>/<env>/
+NOTEBOOK_ENV_SUFFIX = {"block-rearrange": "", "robogym-rearrange": "_robogym", "block-stacking": "_stacking"}
+
+
+def notebook_run(notebook: str, env: str = "block-rearrange") -> str:
+    """The name of `notebook`'s run on `env`: "04_dslate_training_stacking" for
+    ("04_dslate_training", "block-stacking"); the notebook's own name on block-rearrange."""
+    if env not in NOTEBOOK_ENV_SUFFIX:
+        raise ValueError(f"env must be one of {', '.join(NOTEBOOK_ENV_SUFFIX)}, got {env!r}")
+    return notebook + NOTEBOOK_ENV_SUFFIX[env]
+
+
+def split_notebook_run(run: str) -> tuple[str, str]:
+    """(notebook, env) of a run's name, `notebook_run`'s inverse: "05_graph_construction_robogym"
+    -> ("05_graph_construction", "robogym-rearrange"); a name without an env's suffix is
+    block-rearrange's."""
+    for env, suffix in NOTEBOOK_ENV_SUFFIX.items():
+        if suffix and run.endswith(suffix):
+            return run[:-len(suffix)], env
+    return run, "block-rearrange"
+
+
 def figures_dir() -> Path:
     """Where notebooks write figures: $NCS_LITE_FIGURES or <repo>/figures."""
     return _repo_path("NCS_LITE_FIGURES", REPO_DIR / "figures")

@@ -88,6 +88,27 @@ def test_every_link_of_the_readme_and_docs_lands_in_the_book():
         assert not missing, f"{source} links to {missing}, which is not a file of the repository"
 
 
+def test_each_envs_run_of_a_notebook_has_its_title():
+    assert book.run_title("04_dslate_training") == "04_dslate_training"
+    assert book.run_title("04_dslate_training_robogym") == "04_dslate_training (robogym)"
+    assert book.run_title("07_baselines_stacking") == "07_baselines (stacking)"
+
+
+def test_the_book_lists_each_envs_executed_copies(tmp_path):
+    """`make reproduce`'s executed copies <name>_robogym and <name>_stacking each get a page and a
+    line in the menu; a copy without a master notebook gets none."""
+    executed = tmp_path / "executed"
+    executed.mkdir()
+    empty = json.dumps({"cells": [], "metadata": {}, "nbformat": 4, "nbformat_minor": 4})
+    for stem in ("04_dslate_training", "04_dslate_training_robogym", "04_dslate_training_stacking", "99_gone_stacking"):
+        (executed / f"{stem}.ipynb").write_text(empty)
+    made = book.build(tmp_path / "book", executed)
+    assert {"notebooks/04_dslate_training_robogym.html", "notebooks/04_dslate_training_stacking.html"} <= set(made)
+    assert not any("99_gone" in page for page in made)
+    index = (tmp_path / "book" / "index.html").read_text()
+    assert "04_dslate_training (robogym)" in index and "04_dslate_training (stacking)" in index
+
+
 def test_make_book_without_executed_notebooks_says_which_command_makes_them(tmp_path, capsys):
     assert book.main(["--notebooks", str(tmp_path / "none"), "--out", str(tmp_path / "book")]) == 2
     out = capsys.readouterr().out

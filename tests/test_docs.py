@@ -208,3 +208,36 @@ def test_the_times_block_quotes_the_whole_run_and_where_it_started():
     assert "from a fresh clone (no `.venv`, no `.cache`), took 10.0 min of wall time on 2 cores" in text
     times["run"].update(venv_created=False, cache_was_empty=False)
     assert "`.venv` and `.cache` in place" in render_times_block(times)
+
+
+def test_notebook_times_of_each_env_go_to_its_column():
+    """make reproduce records notebooks 04-07's runs on the other envs as <name>_robogym and
+    <name>_stacking: each lands in its env's column, and block-stacking's column appears only
+    once it has a time (the committed README, without one, stays as it is)."""
+    from ncs_lite.docs import render_notebooks_block, render_results_md, render_times_block
+
+    times = {"preset": "reduced", "seconds": {"04_dslate_training": 60.0, "04_dslate_training_robogym": 120.0}}
+    titles = {"04_dslate_training": "dSLATE"}
+    text = render_times_block(times)
+    assert "(1.0 min on block-rearrange, 2.0 min for notebooks 04-07 on robogym-rearrange; one thread" in text
+    assert "block-stacking" not in text + render_notebooks_block(times, titles) + render_results_md({}, times, titles)
+    times["seconds"]["04_dslate_training_stacking"] = 180.0
+    assert "in 6.0 min at `reduced` (1.0 min on block-rearrange, 2.0 min for notebooks 04-07 on robogym-rearrange, " \
+           "3.0 min on block-stacking; one thread" in render_times_block(times)
+    assert render_notebooks_block(times, titles) == ("- [`04_dslate_training`](notebooks/04_dslate_training.ipynb): "
+                                                     "dSLATE (1.0 min; on robogym-rearrange 2.0 min; on block-stacking 3.0 min)")
+    results = render_results_md({}, times, titles)
+    assert "| notebook | block-rearrange | robogym-rearrange | block-stacking |" in results
+    assert "| `04_dslate_training` | 1.0 min | 2.0 min | 3.0 min |" in results
+
+
+def test_a_notebooks_run_on_each_env_has_one_name():
+    from ncs_lite.utils import notebook_run, split_notebook_run
+
+    for env, name in (("block-rearrange", "06_action_selection"), ("robogym-rearrange", "06_action_selection_robogym"),
+                      ("block-stacking", "06_action_selection_stacking")):
+        assert notebook_run("06_action_selection", env) == name
+        assert split_notebook_run(name) == ("06_action_selection", env)
+    with pytest.raises(ValueError, match="env must be one of block-rearrange, robogym-rearrange, block-stacking, "
+                                         "got 'stacking'"):
+        notebook_run("06_action_selection", "stacking")

@@ -205,6 +205,14 @@ def test_measured_time_reads_the_reproduce_record(tmp_path, monkeypatch):
         "time of 01_environments: about 3 min at `reduced` (measured by `make reproduce` at commit abc1234)"
     assert "about 12 s" in figures.measured_time("02_dvae")
     assert figures.measured_time("06_action_selection").endswith("not measured yet")
+    # notebooks 04-07 on the other envs: make reproduce's <name>_robogym and <name>_stacking
+    (tmp_path / "figures" / "notebook_times.json").write_text(json.dumps(
+        {"seconds": {"06_action_selection": 30.0, "06_action_selection_stacking": 400.0}}))
+    assert "about 7 min" in figures.measured_time("06_action_selection", "block-stacking")
+    assert figures.measured_time("06_action_selection", "block-stacking").startswith(
+        "time of 06_action_selection_stacking:")
+    assert "about 30 s" in figures.measured_time("06_action_selection", "block-rearrange")
+    assert figures.measured_time("06_action_selection", "robogym-rearrange").endswith("not measured yet")
 
 
 def test_figures_of_other_presets_leave_figures_alone(monkeypatch):

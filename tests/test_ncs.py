@@ -230,6 +230,10 @@ def test_oracle_solves_tasks_and_random_does_not(oracle_graph, tmp_path):
     path = write_csv(oracle + rand, tmp_path / "r.csv")
     assert path.read_text().splitlines()[0].startswith("method,env,num_objects")
     assert len(path.read_text().splitlines()) == 21
+    # rows with more columns than the first (an agent with the dependency rules counts them) add them
+    ruled = [{**r, "rule_direct": 3} for r in oracle[:2]]
+    lines = write_csv(rand[:1] + ruled, tmp_path / "m.csv").read_text().splitlines()
+    assert lines[0].endswith(",rule_direct") and lines[1].endswith(",") and lines[2].endswith(",3")
 
 
 def test_an_action_that_moves_nothing_is_counted_as_a_noop():
