@@ -567,8 +567,8 @@ ENV_OVERRIDES = {
 # reads a model"; Table 3 gives the state kinds, Table 4 the clusters.
 CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacking": 47}   # Table 4
 # Table 3's columns; block-stacking reads slot states too: a cube's visible mask changes with
-# what stands on it and in front of it, so masks of one place bind to different nodes (the
-# oracle on ground-truth masks solved 0.06 of 100 4-cube tasks, on positions 0.93)
+# what stands on it and in front of it, so masks of one place bind to different nodes (the runs:
+# docs/HISTORY.md, "block-stacking: the camera, the starts and the entity state")
 STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot", "block-stacking": "slot"}
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout",
                       "block-stacking": "most_common"}

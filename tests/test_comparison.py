@@ -73,4 +73,4 @@ def test_robogym_comparison_runs_every_method_from_the_shipped_assets():
     assert sorted(r["method"] for r in rows) == sorted(COMPARED)
     assert {r["env"] for r in rows} == {"robogym-rearrange"}
     with pytest.raises(ValueError, match="env must be one of"):
-        comparison_assets("reduced", env="block-stacking")
+        comparison_assets("reduced", env="no-such-env")
