@@ -101,25 +101,16 @@ class BlockRearrangeConfig:
         return self.grid_size * self.cell / 2
 
 
-class BlockRearrange(RearrangeEnv):
-    """Goal-conditioned block rearrangement with image observations (see module docstring).
+class CubeGrid(RearrangeEnv):
+    """What the two PyBullet envs share: a grid of cells, k cubes in PALETTE's colours on a
+    floor, the (w, dw) action space, a TinyRenderer camera and the DIRECT client. A subclass
+    sets `config` (with grid_size, cell, cube, num_objects, image_size, half_extent) and
+    provides `_camera() -> (view, projection)`; `_light` is the renderer's light direction
+    (None: PyBullet's default)."""
 
-    Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
-    info: ground truth for metrics and the oracle only (no learned agent may read it):
-      positions (k, 3), colors (k, 3), types (k, 3) what a cube is (= its colour),
-      goal_positions (k, 3), constrained (k,) bool,
-      masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
-      -1 for a no-op), picked (int: the cube the pick found, -1 for none; a refused place
-      picks one and moves none), min_steps, horizon, is_success.
-    """
+    _light = None
 
-    def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
-                 horizon_multiplier: float = 4.0, action_noise: float = 0.0,
-                 render_mode: str | None = None, **kwargs):
-        self.config = BlockRearrangeConfig(num_objects=num_objects, goal=goal,
-                                           num_constrained=num_constrained,
-                                           horizon_multiplier=horizon_multiplier,
-                                           action_noise=action_noise, **kwargs)
+    def _setup(self, render_mode: str | None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -139,17 +130,7 @@ class BlockRearrange(RearrangeEnv):
         self.observation_space = spaces.Dict({"image": img, "goal": img})
 
         self._client = pb.connect(pb.DIRECT)
-        self._build_scene()
-        self._cell_of = np.zeros(cfg.num_objects, np.int64)   # current cell of each cube
-        self._goal_cell = np.zeros(cfg.num_objects, np.int64)
-        self._constrained = np.zeros(cfg.num_objects, bool)
-        self._colors = PALETTE[: cfg.num_objects].copy()
-        self._goal_image = self._image = None
-        self._steps = 0
-
-    # ----------------------------------------------------------------- scene
-    def _build_scene(self):
-        cfg, c = self.config, self._client
+        c = self._client
         floor = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[0.5, 0.5, 0.005],
                                      rgbaColor=[*FLOOR_RGB, 1], physicsClientId=c)
         pb.createMultiBody(0, -1, floor, basePosition=[0, 0, -0.005], physicsClientId=c)
@@ -158,13 +139,75 @@ class BlockRearrange(RearrangeEnv):
             vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[cfg.cube / 2] * 3,
                                        rgbaColor=[*PALETTE[i], 1], physicsClientId=c)
             self._bodies.append(pb.createMultiBody(0, -1, vis, physicsClientId=c))
-        self._body_index = {b: i for i, b in enumerate(self._bodies)}
-        # Near-orthographic top-down view: a far camera with a narrow field of view.
+        self._view, self._proj = self._camera()
+        self._colors = PALETTE[: cfg.num_objects].copy()
+        self._goal_image = self._image = None
+        self._steps = 0
+
+    def _camera(self):
+        raise NotImplementedError
+
+    def _render(self):
+        """One TinyRenderer pass -> (H, W, 3) uint8 image and (k, H, W) bool masks."""
+        s = self.config.image_size
+        light = {} if self._light is None else {"lightDirection": self._light}
+        _, _, rgba, _, seg = pb.getCameraImage(
+            s, s, self._view, self._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
+            physicsClientId=self._client, **light)
+        rgb = np.asarray(rgba, np.uint8).reshape(s, s, 4)[..., :3].copy()
+        seg = np.asarray(seg).reshape(s, s)
+        masks = seg[None] == np.asarray(self._bodies)[:, None, None]
+        return rgb, masks
+
+    def _recolour(self, rng) -> None:
+        """k distinct colours of PALETTE for this episode's cubes."""
+        colours = rng.choice(len(PALETTE), size=self.config.num_objects, replace=False)
+        self._colors = PALETTE[colours].copy()
+        for b, rgb in zip(self._bodies, self._colors):
+            pb.changeVisualShape(b, -1, rgbaColor=[*rgb, 1], physicsClientId=self._client)
+
+    def _closed(self) -> bool:
+        return getattr(self, "_client", None) is None
+
+    def close(self):
+        if getattr(self, "_client", None) is not None:
+            pb.disconnect(physicsClientId=self._client)
+            self._client = None
+
+
+class BlockRearrange(CubeGrid):
+    """Goal-conditioned block rearrangement with image observations (see module docstring).
+
+    Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
+    info: ground truth for metrics and the oracle only (no learned agent may read it):
+      positions (k, 3), colors (k, 3), types (k, 3) what a cube is (= its colour),
+      goal_positions (k, 3), constrained (k,) bool,
+      masks (k, H, W) bool per-object segmentation, satisfied (k,) bool, moved (int,
+      -1 for a no-op), picked (int: the cube the pick found, -1 for none; a refused place
+      picks one and moves none), min_steps, horizon, is_success.
+    """
+
+    def __init__(self, num_objects: int = 4, goal: str = "complete", num_constrained=None,
+                 horizon_multiplier: float = 4.0, action_noise: float = 0.0,
+                 render_mode: str | None = None, **kwargs):
+        self.config = BlockRearrangeConfig(num_objects=num_objects, goal=goal,
+                                           num_constrained=num_constrained,
+                                           horizon_multiplier=horizon_multiplier,
+                                           action_noise=action_noise, **kwargs)
+        self._setup(render_mode)
+        self._cell_of = np.zeros(self.config.num_objects, np.int64)   # current cell of each cube
+        self._goal_cell = np.zeros(self.config.num_objects, np.int64)
+        self._constrained = np.zeros(self.config.num_objects, bool)
+
+    # ----------------------------------------------------------------- scene
+    def _camera(self):
+        """Near-orthographic top-down view: a far camera with a narrow field of view."""
+        cfg = self.config
         dist = 3.0
         margin = cfg.half_extent + 0.04
         fov = float(np.degrees(2 * np.arctan(margin / (dist - cfg.cube))))
-        self._view = pb.computeViewMatrix([0, 0, dist], [0, 0, 0], [0, 1, 0])
-        self._proj = pb.computeProjectionMatrixFOV(fov, 1.0, dist - 0.5, dist + 0.5)
+        view = pb.computeViewMatrix([0, 0, dist], [0, 0, 0], [0, 1, 0])
+        return view, pb.computeProjectionMatrixFOV(fov, 1.0, dist - 0.5, dist + 0.5)
 
     def _place(self, cells_of, visible=None):
         cfg = self.config
@@ -176,27 +219,13 @@ class BlockRearrange(RearrangeEnv):
                 xyz = [float(x), float(y), cfg.cube / 2]
             pb.resetBasePositionAndOrientation(b, xyz, [0, 0, 0, 1], physicsClientId=self._client)
 
-    def _render(self):
-        """One TinyRenderer pass -> (H, W, 3) uint8 image and (k, H, W) bool masks."""
-        s = self.config.image_size
-        _, _, rgba, _, seg = pb.getCameraImage(
-            s, s, self._view, self._proj, shadow=0, renderer=pb.ER_TINY_RENDERER,
-            physicsClientId=self._client)
-        rgb = np.asarray(rgba, np.uint8).reshape(s, s, 4)[..., :3].copy()
-        seg = np.asarray(seg).reshape(s, s)
-        masks = seg[None] == np.asarray(self._bodies)[:, None, None]
-        return rgb, masks
-
     # ------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._check_open("reset")
         super().reset(seed=seed)
         cfg, rng = self.config, self.np_random
         k, m = cfg.num_objects, cfg.constrained
-        colours = rng.choice(len(PALETTE), size=k, replace=False)
-        self._colors = PALETTE[colours].copy()
-        for b, rgb in zip(self._bodies, self._colors):
-            pb.changeVisualShape(b, -1, rgbaColor=[*rgb, 1], physicsClientId=self._client)
+        self._recolour(rng)
         # Start cells for all k cubes plus m goal cells, all distinct: goals avoid starts.
         cells = rng.choice(len(self.cells), size=k + m, replace=False)
         self._cell_of = cells[:k].copy()
@@ -213,16 +242,8 @@ class BlockRearrange(RearrangeEnv):
         self._place(self._cell_of)
         return self._observe(moved=-1)
 
-    def _closed(self) -> bool:
-        return getattr(self, "_client", None) is None
-
     def _after_move(self) -> None:
         self._place(self._cell_of)
-
-    def close(self):
-        if getattr(self, "_client", None) is not None:
-            pb.disconnect(physicsClientId=self._client)
-            self._client = None
 
     # --------------------------------------------------------------- helpers
     def _apply(self, action: np.ndarray) -> int:

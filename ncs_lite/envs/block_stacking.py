@@ -43,10 +43,9 @@ import heapq
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from gymnasium import spaces
 
-from .block_rearrange import FLOOR_RGB, PALETTE, pb
-from .common import RearrangeEnv, check_index, check_integer, check_number, check_task, constrained_count, horizon
+from .block_rearrange import PALETTE, CubeGrid, pb
+from .common import check_index, check_integer, check_number, check_task, constrained_count, horizon
 
 Stacks = tuple[tuple[int, ...], ...]     # per cell, the cubes bottom to top
 
@@ -172,7 +171,7 @@ def where(stacks: Stacks) -> dict[int, tuple[int, int]]:
     return {cube: (cell, level) for cell, stack in enumerate(stacks) for level, cube in enumerate(stack)}
 
 
-class BlockStacking(RearrangeEnv):
+class BlockStacking(CubeGrid):
     """Goal-conditioned block stacking with image observations (see module docstring).
 
     Observation: {"image": (64, 64, 3) uint8, "goal": (64, 64, 3) uint8}.
@@ -190,53 +189,29 @@ class BlockStacking(RearrangeEnv):
         self.config = BlockStackingConfig(num_objects=num_objects, goal=goal, num_constrained=num_constrained,
                                           horizon_multiplier=horizon_multiplier, action_noise=action_noise,
                                           **kwargs)
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.render_mode = render_mode
-        cfg = self.config
-        g = cfg.grid_size
-        coords = (np.arange(g) - (g - 1) / 2) * cfg.cell
-        # cells[i] = (x, y) of cell i, row-major from the bottom-left (block-rearrange's order)
-        self.cells = np.stack(np.meshgrid(coords, coords, indexing="xy"), -1).reshape(-1, 2).astype(np.float32)
-        r = cfg.half_extent
-        self.action_space = spaces.Box(
-            low=np.array([-r, -r, 0.0, -2 * r, -2 * r, -0.1], np.float32),
-            high=np.array([r, r, 0.1, 2 * r, 2 * r, 0.1], np.float32), dtype=np.float32)
-        img = spaces.Box(0, 255, (cfg.image_size, cfg.image_size, 3), np.uint8)
-        self.observation_space = spaces.Dict({"image": img, "goal": img})
-        self._client = pb.connect(pb.DIRECT)
-        self._build_scene()
+        self._setup(render_mode)
         self._stacks: Stacks = tuple(() for _ in self.cells)
         self._goal_place: dict[int, tuple[int, int]] = {}
-        self._goal_positions = np.zeros((cfg.num_objects, 3), np.float32)
-        self._constrained = np.zeros(cfg.num_objects, bool)
-        self._colors = PALETTE[: cfg.num_objects].copy()
-        self._goal_image = self._image = None
-        self._steps = 0
+        self._goal_positions = np.zeros((self.config.num_objects, 3), np.float32)
+        self._constrained = np.zeros(self.config.num_objects, bool)
 
     # ----------------------------------------------------------------- scene
-    def _build_scene(self):
-        cfg, c = self.config, self._client
-        floor = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[0.5, 0.5, 0.005],
-                                     rgbaColor=[*FLOOR_RGB, 1], physicsClientId=c)
-        pb.createMultiBody(0, -1, floor, basePosition=[0, 0, -0.005], physicsClientId=c)
-        self._bodies = []
-        for i in range(cfg.num_objects):
-            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[cfg.cube / 2] * 3,
-                                       rgbaColor=[*PALETTE[i], 1], physicsClientId=c)
-            self._bodies.append(pb.createMultiBody(0, -1, vis, physicsClientId=c))
+    _light = [0.4, -1.0, 2.0]           # from the front and above: top faces lit, front faces darker
+
+    def _camera(self):
+        cfg = self.config
         # A far camera in front of the grid (-y), `elevation` degrees up, aimed at the middle
         # of the tallest towers; the field of view fits the grid and stacks of max_height.
         dist, el = 3.0, np.radians(cfg.elevation)
         top = cfg.max_height * cfg.cube
         target = np.array([0.0, 0.0, top / 2])
         eye = target + dist * np.array([0.0, -np.cos(el), np.sin(el)])
-        self._view = pb.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])
+        view = pb.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])
         # the scene's extent seen from the camera: the grid's depth foreshortened plus the towers
         r = cfg.half_extent + 0.03
         vertical = r * np.sin(el) + top / 2 * np.cos(el) + 0.01
         fov = float(np.degrees(2 * np.arctan(max(r, vertical) / (dist - r))))
-        self._proj = pb.computeProjectionMatrixFOV(fov, 1.0, dist - 1.0, dist + 1.0)
+        return view, pb.computeProjectionMatrixFOV(fov, 1.0, dist - 1.0, dist + 1.0)
 
     def _place(self, stacks: Stacks, visible=None):
         cfg = self.config
@@ -250,26 +225,13 @@ class BlockStacking(RearrangeEnv):
                 xyz = [float(x), float(y), (level + 0.5) * cfg.cube]
             pb.resetBasePositionAndOrientation(b, xyz, [0, 0, 0, 1], physicsClientId=self._client)
 
-    def _render(self):
-        """One TinyRenderer pass -> (H, W, 3) uint8 image and (k, H, W) bool masks."""
-        s = self.config.image_size
-        _, _, rgba, _, seg = pb.getCameraImage(
-            s, s, self._view, self._proj, shadow=0, lightDirection=[0.4, -1.0, 2.0],
-            renderer=pb.ER_TINY_RENDERER, physicsClientId=self._client)
-        rgb = np.asarray(rgba, np.uint8).reshape(s, s, 4)[..., :3].copy()
-        seg = np.asarray(seg).reshape(s, s)
-        return rgb, seg[None] == np.asarray(self._bodies)[:, None, None]
-
     # ------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._check_open("reset")
         super().reset(seed=seed)
         cfg, rng = self.config, self.np_random
         k, m = cfg.num_objects, cfg.constrained
-        colours = rng.choice(len(PALETTE), size=k, replace=False)
-        self._colors = PALETTE[colours].copy()
-        for b, rgb in zip(self._bodies, self._colors):
-            pb.changeVisualShape(b, -1, rgbaColor=[*rgb, 1], physicsClientId=self._client)
+        self._recolour(rng)
         cells = len(self.cells)
         # the goal: a random configuration; its constrained cubes are the first m of a random
         # bottom-up order (a cube joins once the cube under it has), so the set is closed downwards
@@ -303,16 +265,8 @@ class BlockStacking(RearrangeEnv):
         self._place(self._stacks)
         return self._observe(moved=-1)
 
-    def _closed(self) -> bool:
-        return getattr(self, "_client", None) is None
-
     def _after_move(self) -> None:
         self._place(self._stacks)
-
-    def close(self):
-        if getattr(self, "_client", None) is not None:
-            pb.disconnect(physicsClientId=self._client)
-            self._client = None
 
     def _apply(self, action: np.ndarray):
         """Pick the top cube at w and put it on the stack nearest w + dw: (picked, moved)."""
