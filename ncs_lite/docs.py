@@ -31,7 +31,7 @@ from pathlib import Path
 
 from .config import STRESS_TASKS, NCSConfig
 from .envs.block_rearrange import BlockRearrangeConfig
-from .utils import NOTEBOOK_ENV_SUFFIX, REPO_DIR, atomic_write_text, split_notebook_run
+from .utils import ENV_SHORT_NAMES, NOTEBOOK_ENV_SUFFIX, REPO_DIR, atomic_write_text, split_notebook_run
 
 __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "readme_blocks",
            "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
@@ -39,6 +39,8 @@ __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "re
 BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
 # the order of the environments in the headline table
 HEADLINE_ENVS = (*BLOCK_ENVS, "block-stacking")
+# the per-env tables of `reproduce robogym|stacking` (robogym_reduced, stacking_reduced)
+ENV_TABLE_PREFIXES = tuple(f"{short}_" for short in ENV_SHORT_NAMES.values() if short)
 # the envs whose main comparison the README shows in full (the others': docs/results.md)
 README_COMPARISONS = ("block-rearrange", "robogym-rearrange")
 # the envs `make reproduce` runs notebooks on, in the order of the times' columns (an env beyond
@@ -299,7 +301,7 @@ def table_command(path: str, table: dict) -> str:
             args += ["--checkpoint", table["checkpoint"]]
         if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
             args += ["--episodes", str(table["episodes"])]
-    elif name.startswith(("robogym_", "stacking_")):
+    elif name.startswith(ENV_TABLE_PREFIXES):
         args = ["reproduce", name.split("_")[0]]
         for key, flag in (("checkpoint", "--checkpoint"), ("graph", "--graph"), ("oracle_graph", "--oracle-graph")):
             if not str(table.get(key, SHIPPED_ASSETS)).startswith(SHIPPED_ASSETS):
@@ -573,7 +575,7 @@ def notebook_titles(folder: Path) -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------- the README
-def _top(tables: dict, prefix: str) -> list[tuple[str, dict]]:
+def _top(tables: dict, prefix: str | tuple[str, ...]) -> list[tuple[str, dict]]:
     return [(p, t) for p, t in tables.items() if "/" not in p and (t.get("table") or Path(p).stem).startswith(prefix)]
 
 
@@ -583,8 +585,7 @@ def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
     every seed shares, such as the oracle's, with its interval), or, for an environment
     without a seeds table yet, one training seed's table (`reproduce robogym`)."""
     seeded = {_env(t) for _, t in _top(tables, "seeds_")}
-    sources = _top(tables, "seeds_") + [(p, t) for p, t in _top(tables, "robogym_") + _top(tables, "stacking_")
-                                        if _env(t) not in seeded]
+    sources = _top(tables, "seeds_") + [(p, t) for p, t in _top(tables, ENV_TABLE_PREFIXES) if _env(t) not in seeded]
     found: dict[tuple[str, str], tuple[dict, str]] = {}
     for path, table in sources:
         rows = table["rows"]
@@ -675,8 +676,7 @@ def render_results_block(tables: dict) -> str:
                   "[docs/results.md](docs/results.md), drawn by notebooks 08-10):", ""]
         lines += _markdown(["figure", "the paper says", "we measure", "verdict"], claims) + [""]
     used = _top(tables, "seeds_") + _top(tables, "baselines_") + [
-        (p, t) for p, t in _top(tables, "robogym_") + _top(tables, "stacking_")
-        if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}] + [
+        (p, t) for p, t in _top(tables, ENV_TABLE_PREFIXES) if _env(t) not in {_env(s) for _, s in _top(tables, "seeds_")}] + [
         (p, t) for figure in FIGURE_TABLES for p, t in _top(tables, figure + "_")]
     commits = {t.get("commit") for _, t in used}
     dirty = [f"`{Path(p).stem}`" for p, t in used if t.get("dirty")]

@@ -48,32 +48,25 @@ SHIPPED_POLICIES = {"bc": ASSETS / "bc_block_rearrange_reduced.pt", "iql": ASSET
 _SHIPPED_GRAPHS = {("ncs", "mask"): SHIPPED_GRAPH, ("ncs", "slot"): SHIPPED_SLOT_GRAPH,
                    ("ncs-oracle", "mask"): SHIPPED_ORACLE_GRAPH, ("ncs-oracle", "slot"): SHIPPED_POSITION_GRAPH,
                    ("nf", "mask"): SHIPPED_NF_GRAPH, ("nf-oracle", "mask"): SHIPPED_NF_ORACLE_GRAPH}
-# robogym-rearrange: its `reduced` checkpoint, its graph on slot states (Table 3's
-# second column, 45 nodes) and the position oracle's graph (`make robogym-assets`)
-ROBOGYM_CHECKPOINT = ASSETS / "dslate_robogym_rearrange_reduced.pt"
-ROBOGYM_SLOT_GRAPH = ASSETS / "graph_robogym_rearrange_reduced_slot.pt"
-ROBOGYM_POSITION_GRAPH = ASSETS / "graph_robogym_rearrange_oracle_position.pt"
-# ... and its baselines (`make robogym-baseline-assets`), NF bound by the two graphs above
-ROBOGYM_POLICIES = {"bc": ASSETS / "bc_robogym_rearrange_reduced.pt", "iql": ASSETS / "iql_robogym_rearrange_reduced.pt"}
-ROBOGYM_NF_GRAPH = ASSETS / "nf_graph_robogym_rearrange_reduced.pt"
-ROBOGYM_NF_ORACLE_GRAPH = ASSETS / "nf_graph_robogym_rearrange_oracle.pt"
-# block-stacking: its `reduced` checkpoint, graphs on slot states (learned s; the oracle's
-# positions) with dependencies, and its baselines (`make stacking-assets`)
-STACKING_CHECKPOINT = ASSETS / "dslate_block_stacking_reduced.pt"
-STACKING_SLOT_GRAPH = ASSETS / "graph_block_stacking_reduced_slot.pt"
-STACKING_POSITION_GRAPH = ASSETS / "graph_block_stacking_oracle_position.pt"
-STACKING_POLICIES = {"bc": ASSETS / "bc_block_stacking_reduced.pt", "iql": ASSETS / "iql_block_stacking_reduced.pt"}
-STACKING_NF_GRAPH = ASSETS / "nf_graph_block_stacking_reduced.pt"
-STACKING_NF_ORACLE_GRAPH = ASSETS / "nf_graph_block_stacking_oracle.pt"
-_SHIPPED = {
-    "block-rearrange": {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES, "graph": _SHIPPED_GRAPHS},
-    "robogym-rearrange": {"model": ROBOGYM_CHECKPOINT, "policy": ROBOGYM_POLICIES,
-                          "graph": {("ncs", "slot"): ROBOGYM_SLOT_GRAPH, ("ncs-oracle", "slot"): ROBOGYM_POSITION_GRAPH,
-                                    ("nf", "slot"): ROBOGYM_NF_GRAPH, ("nf-oracle", "slot"): ROBOGYM_NF_ORACLE_GRAPH}},
-    "block-stacking": {"model": STACKING_CHECKPOINT, "policy": STACKING_POLICIES,
-                       "graph": {("ncs", "slot"): STACKING_SLOT_GRAPH, ("ncs-oracle", "slot"): STACKING_POSITION_GRAPH,
-                                 ("nf", "slot"): STACKING_NF_GRAPH, ("nf-oracle", "slot"): STACKING_NF_ORACLE_GRAPH}},
-}
+
+
+def slot_env_assets(env: str) -> dict:
+    """The shipped `reduced` files of an env read on slot states (robogym-rearrange:
+    `make robogym-assets` and `robogym-baseline-assets`; block-stacking: `make stacking-assets`),
+    named the same way: its dSLATE, its graph on slot states (Table 3's second column), the
+    position oracle's graph, BC and IQL, and NF bound by each of the two graphs."""
+    name = env.replace("-", "_")
+    return {"model": ASSETS / f"dslate_{name}_reduced.pt",
+            "policy": {m: ASSETS / f"{m}_{name}_reduced.pt" for m in ("bc", "iql")},
+            "graph": {("ncs", "slot"): ASSETS / f"graph_{name}_reduced_slot.pt",
+                      ("ncs-oracle", "slot"): ASSETS / f"graph_{name}_oracle_position.pt",
+                      ("nf", "slot"): ASSETS / f"nf_graph_{name}_reduced.pt",
+                      ("nf-oracle", "slot"): ASSETS / f"nf_graph_{name}_oracle.pt"}}
+
+
+_SHIPPED = {"block-rearrange": {"model": SHIPPED_CHECKPOINT, "policy": SHIPPED_POLICIES, "graph": _SHIPPED_GRAPHS},
+            **{env: slot_env_assets(env) for env in ("robogym-rearrange", "block-stacking")}}
+ROBOGYM_POSITION_GRAPH = _SHIPPED["robogym-rearrange"]["graph"][("ncs-oracle", "slot")]
 SHIPPED_ENVS = tuple(_SHIPPED)
 SHIPPED_MODELS = {env: shipped["model"] for env, shipped in _SHIPPED.items()}
 # 4-object training episodes per preset (`reduced`: as many as the shipped checkpoint's buffer)

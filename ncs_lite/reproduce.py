@@ -44,8 +44,8 @@ from .stress import TASKS, stress_table
 from .sweeps import check_executor
 from .tables import table_dir, write_table
 from .training import EXTENDABLE, train
-from .utils import (REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress, provenance,
-                    relative_to_repo, sha256_file, source_hash)
+from .utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress,
+                    provenance, relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
@@ -365,8 +365,8 @@ def record_run_time(seconds: float, venv_created: bool, cache_was_empty: bool, p
 def table_name(table: str, env: str, preset: str) -> str:
     """A table's file name under figures/tables/: `<table>_<preset>` on block-rearrange, with the
     env's short name between on the others (`baselines_robogym_reduced`, `seeds_stacking_reduced`)."""
-    short = {"block-rearrange": "", "robogym-rearrange": "robogym_", "block-stacking": "stacking_"}[env]
-    return f"{table}_{short}{preset}"
+    short = ENV_SHORT_NAMES[env]
+    return f"{table}_{short}_{preset}" if short else f"{table}_{preset}"
 
 
 def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_episodes: int | None = None,
@@ -399,7 +399,7 @@ def baselines_table(preset: str = "reduced", episodes: int | None = None, mpc_ep
 
 
 # ------------------------------------------------------- robogym-rearrange, block-stacking
-ENV_TABLES = {"robogym-rearrange": "robogym_reduced", "block-stacking": "stacking_reduced"}
+ENV_TABLES = {env: f"{ENV_SHORT_NAMES[env]}_reduced" for env in ("robogym-rearrange", "block-stacking")}
 
 
 def env_table(env: str, episodes: int = 100, objects=None, images: int = 200, checkpoint=None, graph=None,
@@ -534,10 +534,11 @@ def check_table_args(name: str, args) -> None:
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
     if args.objects is not None:
-        # local: robogym_rearrange imports MuJoCo, slow to load and needed by robogym alone
-        from .envs.robogym_rearrange import RobogymRearrangeConfig
-
-        config = BlockStackingConfig if name == "stacking" or args.env == "block-stacking" else RobogymRearrangeConfig
+        if name == "stacking" or args.env == "block-stacking":
+            config = BlockStackingConfig
+        else:
+            # local: robogym_rearrange imports MuJoCo, slow to load and needed by robogym alone
+            from .envs.robogym_rearrange import RobogymRearrangeConfig as config
         for k in args.objects:
             try:
                 config(num_objects=k)

@@ -368,7 +368,10 @@ def _repo_path(variable: str, default: Path) -> Path:
 # notebooks 04-07 run once more on each other env (`make reproduce`, `env` parameter): that run's
 # executed copy (build/notebooks/<run>.ipynb) and time (figures/notebook_times.json) are named
 # <notebook><suffix>; its figures go to figures/<notebook>/<env>/
-NOTEBOOK_ENV_SUFFIX = {"block-rearrange": "", "robogym-rearrange": "_robogym", "block-stacking": "_stacking"}
+# each env's short name in the file names of its notebook runs and tables (block-rearrange's
+# files carry none: `notebook_run`, `reproduce.table_name`)
+ENV_SHORT_NAMES = {"block-rearrange": "", "robogym-rearrange": "robogym", "block-stacking": "stacking"}
+NOTEBOOK_ENV_SUFFIX = {env: f"_{short}" if short else "" for env, short in ENV_SHORT_NAMES.items()}
 
 
 def notebook_run(notebook: str, env: str = "block-rearrange") -> str:

@@ -64,8 +64,22 @@ COLOR_NAMES = ("red", "green", "blue", "yellow", "magenta", "cyan", "orange", "w
 FLOOR_RGB = (0.35, 0.35, 0.38)
 
 
+class GridTask:
+    """What a cube-grid config derives from its fields (num_objects, goal, num_constrained,
+    grid_size, cell): the constrained count and the grid's half width."""
+
+    @property
+    def constrained(self) -> int:
+        return constrained_count(self)
+
+    @property
+    def half_extent(self) -> float:
+        """Half the grid's width: cells sit at +-(i + 0.5) * cell around the origin."""
+        return self.grid_size * self.cell / 2
+
+
 @dataclass(frozen=True)
-class BlockRearrangeConfig:
+class BlockRearrangeConfig(GridTask):
     """Everything that defines a block-rearrange task distribution (stored with data)."""
 
     num_objects: int = 4
@@ -90,15 +104,6 @@ class BlockRearrangeConfig:
             raise ValueError(
                 f"{self.constrained} constrained cubes need {2 * self.constrained} distinct "
                 f"cells (start and goal) but the grid has {cells}")
-
-    @property
-    def constrained(self) -> int:
-        return constrained_count(self)
-
-    @property
-    def half_extent(self) -> float:
-        """Half the grid's width: cells sit at +-(i + 0.5) * cell around the origin."""
-        return self.grid_size * self.cell / 2
 
 
 class CubeGrid(RearrangeEnv):

@@ -8,13 +8,13 @@ The arena is block-rearrange's: 4x4 cells 10 cm apart, 6 cm cubes in its eight c
 rendered by PyBullet's TinyRenderer in DIRECT mode. Stacks are at most `max_height` = 3
 cubes high, so a cube has 16 x 3 = 48 places (cell, level), the nearest grid to the 47
 graph nodes of Table 4. Heights must be visible, so the camera looks down from the front
-at `elevation` = 60 degrees instead of straight down: a cube one level up is drawn about 4
-pixels higher in the 64-pixel image, its lit top face above its darker front face (a person
-and a model tell a 2-stack from a 3-stack by the height of the top cube). From 60 degrees a
-2-stack never hides the front face of a cube in the row behind it; a 3-stack can, and a cube
-under another that is hidden so has no visible pixel (`info["masks"]` all False: about 1 cube in
-45 of the starts and goals of 6-cube tasks, 1 in 250 with 5 cubes, none with 4, which cannot
-make a 3-stack in front of a covered cube). Higher cameras hide less behind stacks but draw
+at `elevation` = 60 degrees instead of straight down: a cube one level up is drawn 3.5 pixels
+higher in the 64-pixel image (a row further back: 10 pixels), its lit top face above its darker
+front face (a person and a model tell a 2-stack from a 3-stack by the height of the top cube).
+From 60 degrees a 2-stack never hides the front face of a cube in the row behind it; a 3-stack
+can, and a cube under another that is hidden so has no visible pixel (`info["masks"]` all
+False: 1 cube in 107 of the starts and goals of 400 six-cube tasks, 1 in 267 with 5 cubes, none
+with 4, which cannot make a 3-stack in front of a covered cube). Higher cameras hide less behind stacks but draw
 levels closer together, and from straight above a covered cube is never seen.
 
 Action `(w, dw)`: the Box of block-rearrange (z ignored). Semantics, in order:
@@ -44,14 +44,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .block_rearrange import PALETTE, CubeGrid, pb
-from .common import check_index, check_integer, check_number, check_task, constrained_count, horizon
+from .block_rearrange import PALETTE, CubeGrid, GridTask, pb
+from .common import check_index, check_integer, check_number, check_task, horizon
 
 Stacks = tuple[tuple[int, ...], ...]     # per cell, the cubes bottom to top
 
 
 @dataclass(frozen=True)
-class BlockStackingConfig:
+class BlockStackingConfig(GridTask):
     """Everything that defines a block-stacking task distribution (stored with data)."""
 
     num_objects: int = 4
@@ -86,14 +86,6 @@ class BlockStackingConfig:
         if self.num_objects > self.grid_size ** 2 * self.max_height - self.max_height:
             raise ValueError(f"{self.num_objects} cubes leave no room to move on a {self.grid_size}x"
                              f"{self.grid_size} grid of stacks of {self.max_height}")
-
-    @property
-    def constrained(self) -> int:
-        return constrained_count(self)
-
-    @property
-    def half_extent(self) -> float:
-        return self.grid_size * self.cell / 2
 
 
 # ------------------------------------------------------------ the task's combinatorics

@@ -100,15 +100,12 @@ class Decision(NamedTuple):
 def first_hop(graph, src: int, dst: int, allowed: set[int]) -> int | None:
     """The second node of a shortest path src -> dst over the graph's edges whose
     intermediate nodes are in `allowed` (breadth first; ties to the lowest node), or None."""
-    nexts: dict[int, list[int]] = {}
-    for (s, d) in graph.edges:
-        if s != d:
-            nexts.setdefault(s, []).append(d)
+    nexts = graph.successors()
     first = {src: None}
     queue = deque([src])
     while queue:
         node = queue.popleft()
-        for nxt in sorted(nexts.get(node, ())):
+        for nxt in nexts.get(node, ()):
             if nxt in first:
                 continue
             first[nxt] = nxt if node == src else first[node]
@@ -128,7 +125,10 @@ def select_dependent(current_nodes: np.ndarray, current_on: np.ndarray, goal_nod
     pairs and their isolate distances (P,). A pair with an entity off the graph (the floor's
     slots) is no constraint: it is never in place, satisfiable or pending."""
     constraint = current_on[current_index] & goal_on[goal_index]
-    above = [[m for m in range(len(supports)) if n in supports[m]] for n in range(len(supports))]
+    above: list[list[int]] = [[] for _ in supports]        # above[n]: the nodes n supports
+    for m, under in enumerate(supports):
+        for n in under:
+            above[n].append(m)
     objects = [c for c in range(len(current_nodes)) if current_on[c]]
     holder: dict[int, list[int]] = {}
     for c in objects:

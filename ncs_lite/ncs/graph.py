@@ -201,7 +201,7 @@ class TransitionGraph:
     edges: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)   # how it was built, coverage, counts
     examples: dict | None = None
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)   # derived from `examples`
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)   # derived from edges, examples
 
     @property
     def edge_action(self) -> str:
@@ -227,6 +227,16 @@ class TransitionGraph:
         """supports[n]: the nodes under node n (`ncs.dependencies`), for a graph built with
         dependencies; None otherwise (objects move independently)."""
         return self.info.get("supports")
+
+    def successors(self) -> dict[int, list[int]]:
+        """{node: the other nodes an edge leads to, ascending} (computed once per graph)."""
+        if "successors" not in self._cache:
+            nexts: dict[int, set[int]] = {}
+            for s, d in self.edges:
+                if s != d:
+                    nexts.setdefault(s, set()).add(d)
+            self._cache["successors"] = {s: sorted(ds) for s, ds in nexts.items()}
+        return self._cache["successors"]
 
     def locate(self, states: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """(nodes, on the graph) of states (..., D), for a graph built with dependencies
@@ -362,6 +372,7 @@ class TransitionGraph:
         """Edges for transitions src -> dst with their actions; with before/after states (M, D)
         the graph keeps examples ("nearest") and self-loops too."""
         keep = before is not None
+        self._cache.clear()                # what was derived from the edges and examples is stale
         if keep and self.examples is None:
             self.examples = {}
         for m, (s, d, a) in enumerate(zip(src.tolist(), dst.tolist(),

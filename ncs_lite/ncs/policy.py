@@ -49,13 +49,12 @@ figure draws what the agent computed instead of computing it again.
 """
 from __future__ import annotations
 
+from collections import Counter
 from typing import NamedTuple
 
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
-
-from collections import Counter
 
 from ..config import ALIGN_RULES, NCSConfig
 from .dependencies import RULES, select_dependent
