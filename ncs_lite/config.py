@@ -85,6 +85,10 @@ class SlotConfig:
     #                             render phase on (that phase and every read after training,
     #                             DSlate.position_prior): a finished run extends by it
 
+    implicit: bool = False      # differentiate only slot attention's last iteration, from the
+    #                             detached slots of the others (implicit differentiation's
+    #                             first-order form, Chang et al. 2022; not in the paper)
+
     @property
     def slot_dim(self) -> int:
         return self.type_dim + self.state_dim

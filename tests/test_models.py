@@ -122,6 +122,34 @@ def test_slot_attention_learned_init_gets_gradients_and_any_k():
     assert sa.log_sigma.grad is not None and sa.log_sigma.grad.abs().sum() > 0
 
 
+def test_implicit_slot_attention_reads_the_same_and_differentiates_one_step():
+    """`implicit` changes the gradient, not the read: the same slots and attention, and the
+    gradient equals that of one iteration started from the unrolled slots, detached."""
+    torch.manual_seed(0)
+    plain = SlotAttention(input_dim=8, slot_dim=8, num_slots=3, iterations=3, heads=2)
+    implicit = SlotAttention(input_dim=8, slot_dim=8, num_slots=3, iterations=3, heads=2, implicit=True)
+    implicit.load_state_dict(plain.state_dict())
+    x, init = torch.randn(2, 10, 8), torch.randn(2, 3, 8)
+    slots, attn = implicit(x, init_slots=init)
+    ref_slots, ref_attn = plain(x, init_slots=init)
+    assert torch.equal(slots, ref_slots) and torch.equal(attn, ref_attn)
+
+    slots.square().sum().backward()
+    with torch.no_grad():
+        before, _ = plain(x, init_slots=init, iterations=2)
+    one, _ = plain(x, init_slots=before, iterations=1)
+    one.square().sum().backward()
+    for (name, p), q in zip(implicit.named_parameters(), plain.parameters()):
+        if name in ("mu", "log_sigma"):
+            assert p.grad is None                           # the initial Gaussian gets none
+        else:
+            assert p.grad is not None and torch.allclose(p.grad, q.grad, atol=1e-6), name
+    full = SlotAttention(input_dim=8, slot_dim=8, num_slots=3, iterations=3, heads=2)
+    full.load_state_dict(plain.state_dict())
+    full(x, init_slots=init)[0].square().sum().backward()
+    assert not torch.allclose(full.to_q.weight.grad, implicit.to_q.weight.grad)  # it differs from unrolling
+
+
 # ---------------------------------------------------------------- decoder, dynamics
 def test_decoder_is_causal():
     torch.manual_seed(0)

@@ -125,7 +125,7 @@ class DSlate(nn.Module):
         # SLATE's encoder MLP between those features and slot attention
         self.sa_in = nn.Sequential(nn.LayerNorm(d), nn.Linear(d, d), nn.ReLU(), nn.Linear(d, d))
         self.slot_attn = SlotAttention(d, sc.slot_dim, sc.num_slots, sc.iterations, sc.heads,
-                                       sc.mlp_hidden)
+                                       sc.mlp_hidden, implicit=sc.implicit)
         dc = cfg.decoder
         self.decoder = TransformerDecoder(V, N, sc.slot_dim, d, dc.layers, dc.heads, dc.dropout)
         dy = cfg.dynamics

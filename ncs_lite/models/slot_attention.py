@@ -11,6 +11,13 @@ reparameterisation trick), so both mu and log_sigma receive gradients. For video
 Nothing in the update depends on the slot index, so permuting the initial slots permutes
 the outputs in the same way (slot-permutation equivariance), and any K works at inference.
 
+With `implicit`, the iterations before the last run without gradient and the last starts
+from their detached slots, so only one step is differentiated: the first-order form of
+implicit differentiation through slot attention's fixed point (Chang, Griffiths and Levine,
+"Object Representations as Fixed Points", NeurIPS 2022), which keeps training from
+following the unrolled iterations' unstable gradients. The slots and attention it returns
+are the same numbers as without it; the initial Gaussian then gets no gradient.
+
 Shapes: inputs (B, N, Din); slots (B, K, D); attention (B, K, N).
 """
 from __future__ import annotations
@@ -24,8 +31,10 @@ __all__ = ["SlotAttention"]
 
 class SlotAttention(nn.Module):
     def __init__(self, input_dim: int, slot_dim: int, num_slots: int, iterations: int = 3,
-                 heads: int = 1, mlp_hidden: int | None = None, eps: float = 1e-8):
+                 heads: int = 1, mlp_hidden: int | None = None, eps: float = 1e-8,
+                 implicit: bool = False):
         super().__init__()
+        self.implicit = implicit
         if slot_dim % heads:
             raise ValueError(f"slot_dim {slot_dim} must be divisible by heads {heads}")
         self.slot_dim, self.num_slots, self.iterations, self.heads, self.eps = (
@@ -58,19 +67,29 @@ class SlotAttention(nn.Module):
         B, N, _ = inputs.shape
         H, Dh = self.heads, self.slot_dim // self.heads
         slots = init_slots if init_slots is not None else self.initial_slots(B, num_slots, generator)
-        K = slots.shape[1]
         k, v = self.to_kv(self.norm_inputs(inputs)).chunk(2, dim=-1)
         k = k.reshape(B, N, H, Dh).transpose(1, 2) * Dh ** -0.5     # (B, H, N, Dh)
         v = v.reshape(B, N, H, Dh).transpose(1, 2)                  # (B, H, N, Dh)
-        attn = None
-        for _ in range(iterations or self.iterations):
-            prev = slots
-            q = self.to_q(self.norm_slots(slots)).reshape(B, K, H, Dh).transpose(1, 2)  # (B, H, K, Dh)
-            logits = q @ k.transpose(-1, -2)                        # (B, H, K, N)
-            attn = torch.softmax(logits.float(), dim=2)             # over slots
-            w = attn / (attn.sum(dim=-1, keepdim=True) + self.eps)  # weighted mean over inputs
-            updates = (w.to(v.dtype) @ v).transpose(1, 2).reshape(B, K, self.slot_dim)
-            slots = self.gru(updates.reshape(B * K, -1).to(prev.dtype),
-                             prev.reshape(B * K, -1)).reshape(B, K, -1)
-            slots = slots + self.mlp(slots)
+        steps = iterations or self.iterations
+        if self.implicit and steps > 1:
+            with torch.no_grad():
+                for _ in range(steps - 1):
+                    slots, _ = self._update(slots, k, v)
+            slots, steps = slots.detach(), 1
+        for _ in range(steps):
+            slots, attn = self._update(slots, k, v)
         return slots, attn.mean(dim=1)                              # (B, K, D), (B, K, N)
+
+    def _update(self, slots: torch.Tensor, k: torch.Tensor, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One iteration: slots (B, K, D), keys and values (B, H, N, Dh) -> (new slots,
+        per-head attention (B, H, K, N) summing to 1 over K)."""
+        B, K, _ = slots.shape
+        H, Dh = self.heads, self.slot_dim // self.heads
+        q = self.to_q(self.norm_slots(slots)).reshape(B, K, H, Dh).transpose(1, 2)  # (B, H, K, Dh)
+        logits = q @ k.transpose(-1, -2)                            # (B, H, K, N)
+        attn = torch.softmax(logits.float(), dim=2)                 # over slots
+        w = attn / (attn.sum(dim=-1, keepdim=True) + self.eps)      # weighted mean over inputs
+        updates = (w.to(v.dtype) @ v).transpose(1, 2).reshape(B, K, self.slot_dim)
+        new = self.gru(updates.reshape(B * K, -1).to(slots.dtype),
+                       slots.reshape(B * K, -1)).reshape(B, K, -1)
+        return new + self.mlp(new), attn
