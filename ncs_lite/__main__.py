@@ -204,9 +204,17 @@ def _reproduce(args) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line: one subcommand per `_add_<command>`."""
     parser = argparse.ArgumentParser(prog="python -m ncs_lite", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_collect, _add_bench, _add_graph, _add_evaluate, _add_train, _add_train_baseline,
+                _add_graph_nf, _add_reproduce):
+        add(sub)
+    return parser
 
+
+def _add_collect(sub) -> None:
+    """The `collect` command's arguments."""
     p = sub.add_parser("collect", help="collect a buffer of random pick-and-move episodes")
     p.add_argument("--env", default="block-rearrange")
     p.add_argument("--episodes", type=int, required=True)
@@ -216,11 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.set_defaults(func=_collect)
 
+
+def _add_bench(sub) -> None:
+    """The `bench` command's arguments."""
     p = sub.add_parser("bench", help="run a benchmark, write JSON")
     p.add_argument("name", help="envs | train | kmeans | ncs")
     p.add_argument("--out", help="JSON file to write")
     p.set_defaults(func=_bench)
 
+
+def _add_graph(sub) -> None:
+    """The `graph` command's arguments."""
     p = sub.add_parser("graph", help="build the NCS transition graph of a buffer")
     p.add_argument("--checkpoint", help="dSLATE checkpoint (learned entities)")
     p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
@@ -237,6 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_arguments(p)
     p.set_defaults(func=_graph)
 
+
+def _add_evaluate(sub) -> None:
+    """The `evaluate` command's arguments."""
     p = sub.add_parser("evaluate", help="evaluate a method on a seeded task set")
     p.add_argument("--env", default="block-rearrange")
     p.add_argument("--method", required=True,
@@ -262,6 +279,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_arguments(p)
     p.set_defaults(func=_evaluate)
 
+
+def _add_train(sub) -> None:
+    """The `train` command's arguments."""
     p = sub.add_parser("train", help="train dSLATE on an experience buffer",
                               description="Train dSLATE (dVAE + slot attention + SLATE decoder + "
                                           "dynamics) on a buffer made by `collect`.")
@@ -287,6 +307,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="delete an existing run at --out (checkpoint and loss log) and start afresh")
     p.set_defaults(func=_train)
 
+
+def _add_train_baseline(sub) -> None:
+    """The `train-baseline` command's arguments."""
     p = sub.add_parser("train-baseline", help="train the BC or IQL baseline on a buffer")
     p.add_argument("--method", required=True, help="bc | iql")
     p.add_argument("--env", default="block-rearrange", help="environment the buffer comes from")
@@ -299,6 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_arguments(p)
     p.set_defaults(func=_train_baseline)
 
+
+def _add_graph_nf(sub) -> None:
+    """The `graph-nf` command's arguments."""
     p = sub.add_parser("graph-nf", help="build the NF baseline's graph over whole entity sets")
     p.add_argument("--checkpoint", help="dSLATE checkpoint (learned entities)")
     p.add_argument("--oracle", action="store_true", help="ground-truth entities instead")
@@ -311,6 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_arguments(p)
     p.set_defaults(func=_graph_nf)
 
+
+def _add_reproduce(sub) -> None:
+    """The `reproduce` command's arguments."""
     p = sub.add_parser("reproduce",
                               help="regenerate a README table (seeds, clusters, baselines, robogym, stacking, fig9, fig10, "
                                    "fig11)",
@@ -345,7 +374,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out-dir", default=None, help="table folder (default: figures/tables)")
     add_run_arguments(p)
     p.set_defaults(func=_reproduce)
-    return parser
 
 
 def main(argv=None) -> int:

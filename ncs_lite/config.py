@@ -235,6 +235,9 @@ class DSlateConfig:
         return self.image_size // self.slots.encoder_stride if self.slots.encoder == "cnn" else self.grid
 
     def validate(self) -> "DSlateConfig":
+        """Refuse, in one line naming the field, a value this code cannot build or train:
+        types, sizes and ranges (`_AT_LEAST`, `_IN_RANGE`), choices (`_CHOICES`), shapes that
+        must divide, and parts that need another part (`_check_needs`)."""
         _check_field_types(self)
         for name, low in _AT_LEAST.items():         # sizes a model can be built and trained with
             value = _field(self, name)
@@ -244,6 +247,9 @@ class DSlateConfig:
             value = _field(self, name)
             if not (low < value if high is None else low <= value < high):
                 raise ValueError(f"{name} must be {expected}, got {value!r}")
+        for name, options in _CHOICES.items():
+            if _field(self, name) not in options:
+                raise ValueError(f"{name} must be {_options_text(options)}, got {_field(self, name)!r}")
         if self.action_dim != 6:
             raise ValueError(f"action_dim must be 6 (the envs' action (w, dw)), got {self.action_dim}")
         try:
@@ -253,84 +259,63 @@ class DSlateConfig:
         if not norm > 0:
             raise ValueError("train.grad_clip_norm must be the order of a norm, a number > 0 or 'inf' "
                              f"(clip_grad_norm_'s norm_type), got {self.train.grad_clip_norm!r}")
-        if self.image_size % self.downsample:
-            raise ValueError(f"image_size ({self.image_size}) must be divisible by downsample "
-                             f"({self.downsample})")
-        if self.slots.slot_dim % self.slots.heads:
-            raise ValueError(f"slot_dim {self.slots.slot_dim} must be divisible by slot heads "
-                             f"{self.slots.heads}")
-        for part in ("decoder", "dynamics"):
-            c = getattr(self, part)
-            if c.hidden % c.heads:
-                raise ValueError(f"{part}.hidden {c.hidden} must be divisible by {part}.heads {c.heads}")
-        if self.slots.encoder not in ("tokens", "cnn"):
-            raise ValueError(f"slots.encoder must be 'tokens' or 'cnn', got {self.slots.encoder!r}")
-        if self.image_size % self.slots.encoder_stride:
-            raise ValueError(f"image_size ({self.image_size}) must be divisible by slots.encoder_stride "
-                             f"({self.slots.encoder_stride})")
-        for name in ("mixture.error", "train.polish_mixture_error"):
-            if _field(self, name) not in MIXTURE_ERRORS:
-                raise ValueError(f"{name} must be {' or '.join(map(repr, MIXTURE_ERRORS))}, got {_field(self, name)!r}")
-        if self.mixture.alpha not in MIXTURE_ALPHAS:
-            raise ValueError(f"mixture.alpha must be {' or '.join(map(repr, MIXTURE_ALPHAS))}, "
-                             f"got {self.mixture.alpha!r}")
-        if self.slots.position_state and self.slots.state_dim < 4:
-            raise ValueError("slots.position_state fills 4 state features with where the slot attends "
-                             f"and needs slots.state_dim >= 4, got {self.slots.state_dim}")
-        if self.mixture.appearance not in MIXTURE_APPEARANCES:
-            raise ValueError(f"mixture.appearance must be {' or '.join(map(repr, MIXTURE_APPEARANCES))}, "
-                             f"got {self.mixture.appearance!r}")
-        if self.mixture.appearance == "type" and self.mixture.alpha != "attention":
-            raise ValueError("mixture.appearance 'type' paints without a position and needs "
-                             f"mixture.alpha 'attention', got {self.mixture.alpha!r}")
-        for name, value in (("mixture.foreground_weight", self.mixture.foreground_weight),
-                            ("dvae.foreground_weight", self.dvae.foreground_weight)):
-            if not value >= 1.0:
-                raise ValueError(f"{name} must be >= 1, got {value}")
-        for name, value in (("mixture.state_mask_weight", self.mixture.state_mask_weight),
-                            ("dynamics.latent_weight", self.dynamics.latent_weight)):
-            if not value >= 0.0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
-        if self.mixture.state_mask_weight > 0 and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
-            raise ValueError("mixture.state_mask_weight > 0 learns slot attention's masks from s and "
-                             "needs the mixture decoder (mixture.weight > 0) with mixture.alpha 'attention'")
-        if self.mixture.render_hidden and (self.mixture.weight == 0 or self.mixture.alpha != "attention"):
-            raise ValueError("mixture.render_hidden > 0 draws masks for the mixture decoder to paint and "
-                             "needs it (mixture.weight > 0) with mixture.alpha 'attention'")
+        if not 2 <= self.train.window <= 5:
+            raise ValueError(f"train.window must be in 2..5 (frames per video), got {self.train.window}")
+        for size, divisor in (("image_size", "downsample"), ("image_size", "slots.encoder_stride"),
+                              ("slots.slot_dim", "slots.heads"), ("decoder.hidden", "decoder.heads"),
+                              ("dynamics.hidden", "dynamics.heads")):
+            if _field(self, size) % _field(self, divisor):
+                raise ValueError(f"{size} ({_field(self, size)}) must be divisible by {divisor} "
+                                 f"({_field(self, divisor)})")
         if self.train.dvae_warmup_steps > self.train.main_steps():
             raise ValueError(f"train.dvae_warmup_steps ({self.train.dvae_warmup_steps}) are the schedule's first "
                              f"steps and cannot exceed its {self.train.main_steps()} (train.main_steps())")
         if self.train.render_mask_steps > self.train.render_steps:
             raise ValueError(f"train.render_mask_steps ({self.train.render_mask_steps}) are the render phase's "
                              f"first steps and cannot exceed train.render_steps ({self.train.render_steps})")
-        if self.train.render_steps and not self.mixture.render_hidden:
-            raise ValueError("train.render_steps > 0 fits the renderer, but mixture.render_hidden is 0 "
-                             "(no renderer)")
-        if self.train.precision not in ("auto", "bf16", "fp32"):
-            raise ValueError(f"train.precision must be 'auto', 'bf16' or 'fp32', got {self.train.precision!r}")
-        if self.train.color_augment not in COLOR_AUGMENTS:
-            raise ValueError(f"train.color_augment must be one of {', '.join(map(repr, COLOR_AUGMENTS))}, "
-                             f"got {self.train.color_augment!r}")
-        if self.train.color_augment != "none" and self.mixture.weight == 0:
-            raise ValueError("train.color_augment augments the mixture decoder's input, but mixture.weight "
-                             "is 0 (no mixture decoder)")
-        if self.train.lr_decay not in ("none", "cosine"):
-            raise ValueError(f"train.lr_decay must be 'none' or 'cosine', got {self.train.lr_decay!r}")
-        if self.train.polish_steps < 0 or not self.train.polish_lr > 0:
-            raise ValueError("train.polish_steps must be >= 0 and train.polish_lr > 0, got "
-                             f"{self.train.polish_steps} and {self.train.polish_lr}")
-        if self.train.polish_steps and self.mixture.weight == 0:
-            raise ValueError("train.polish_steps > 0 polishes the mixture decoder's slots, but "
-                             "mixture.weight is 0 (no mixture decoder)")
-        if self.train.dynamics_steps and self.dynamics.latent_weight == 0:
-            raise ValueError("train.dynamics_steps > 0 trains the dynamics on the latent loss, but "
-                             "dynamics.latent_weight is 0 (no latent loss)")
-        if not self.train.polish_foreground_weight >= 1.0:
-            raise ValueError("train.polish_foreground_weight must be >= 1, got "
-                             f"{self.train.polish_foreground_weight}")
-        if not 2 <= self.train.window <= 5:
-            raise ValueError(f"train.window must be in 2..5 (frames per video), got {self.train.window}")
+        _check_needs(self)
         return self
+
+
+def _options_text(options) -> str:
+    """'a' or 'b' / 'a', 'b' or 'c': the choices of a field, for its error."""
+    quoted = [repr(o) for o in options]
+    return quoted[0] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
+
+
+def _check_needs(cfg: "DSlateConfig") -> None:
+    """Refuse a part switched on without the part it needs (a phase without the loss or
+    decoder it trains, a mask head without attention masks, ...), naming both."""
+    mixture = cfg.mixture.weight > 0
+    attention = mixture and cfg.mixture.alpha == "attention"
+    needs = (
+        (cfg.slots.position_state and cfg.slots.state_dim < 4,
+         "slots.position_state fills 4 state features with where the slot attends "
+         f"and needs slots.state_dim >= 4, got {cfg.slots.state_dim}"),
+        (cfg.mixture.appearance == "type" and cfg.mixture.alpha != "attention",
+         "mixture.appearance 'type' paints without a position and needs "
+         f"mixture.alpha 'attention', got {cfg.mixture.alpha!r}"),
+        (cfg.mixture.state_mask_weight > 0 and not attention,
+         "mixture.state_mask_weight > 0 learns slot attention's masks from s and "
+         "needs the mixture decoder (mixture.weight > 0) with mixture.alpha 'attention'"),
+        (cfg.mixture.render_hidden and not attention,
+         "mixture.render_hidden > 0 draws masks for the mixture decoder to paint and "
+         "needs it (mixture.weight > 0) with mixture.alpha 'attention'"),
+        (cfg.train.render_steps and not cfg.mixture.render_hidden,
+         "train.render_steps > 0 fits the renderer, but mixture.render_hidden is 0 (no renderer)"),
+        (cfg.train.color_augment != "none" and not mixture,
+         "train.color_augment augments the mixture decoder's input, but mixture.weight "
+         "is 0 (no mixture decoder)"),
+        (cfg.train.polish_steps and not mixture,
+         "train.polish_steps > 0 polishes the mixture decoder's slots, but "
+         "mixture.weight is 0 (no mixture decoder)"),
+        (cfg.train.dynamics_steps and cfg.dynamics.latent_weight == 0,
+         "train.dynamics_steps > 0 trains the dynamics on the latent loss, but "
+         "dynamics.latent_weight is 0 (no latent loss)"),
+    )
+    for broken, message in needs:
+        if broken:
+            raise ValueError(message)
 
 
 # Smallest values of the integer fields that size a model or a run (validate)
@@ -343,7 +328,7 @@ _AT_LEAST = {
     "train.episodes_per_epoch": 1, "train.batch_size": 1, "train.warmup_steps": 0,
     "train.dvae_warmup_steps": 0, "train.checkpoint_every": 1, "train.seed": 0, "train.dynamics_steps": 0,
     "train.render_steps": 0, "train.render_mask_steps": 0, "mixture.render_hidden": 0,
-    "train.refit_steps": 0,
+    "train.refit_steps": 0, "train.polish_steps": 0,
 }
 # float fields: (low, high, what is expected): low < value when high is None, else low <= value < high
 _IN_RANGE = {
@@ -353,6 +338,17 @@ _IN_RANGE = {
     "decoder.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.token_dropout": (0.0, 1.0, "in [0, 1)"),
     "dynamics.dropout": (0.0, 1.0, "in [0, 1)"), "decoder.slot_grad": (0.0, math.inf, ">= 0"),
     "mixture.weight": (0.0, math.inf, ">= 0"),
+    "mixture.foreground_weight": (1.0, math.inf, ">= 1"), "dvae.foreground_weight": (1.0, math.inf, ">= 1"),
+    "train.polish_foreground_weight": (1.0, math.inf, ">= 1"),
+    "mixture.state_mask_weight": (0.0, math.inf, ">= 0"), "dynamics.latent_weight": (0.0, math.inf, ">= 0"),
+    "train.polish_lr": (0.0, None, "> 0"),
+}
+# fields that take one of a few words
+_CHOICES = {
+    "slots.encoder": ("tokens", "cnn"), "mixture.error": MIXTURE_ERRORS,
+    "train.polish_mixture_error": MIXTURE_ERRORS, "mixture.alpha": MIXTURE_ALPHAS,
+    "mixture.appearance": MIXTURE_APPEARANCES, "train.precision": ("auto", "bf16", "fp32"),
+    "train.color_augment": COLOR_AUGMENTS, "train.lr_decay": ("none", "cosine"),
 }
 
 

@@ -387,18 +387,41 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     Plus the counts they rest on. `matched`: `matched_slots(model, buffer, restarts, seed)`
     if the caller already has it (a notebook draws it too).
     """
-    frames, true = buffer["frames"], np.asarray(buffer["masks"]).astype(bool)
+    true = np.asarray(buffer["masks"]).astype(bool)
     f = matched if matched is not None else matched_slots(model, buffer, restarts, seed, batch_size)
-    E, T, k = true.shape[:3]
-    K, Dz = f["slots"].shape[2], model.type_dim
-    slots, owner, z = f["slots"], f["owner"], f["z"]
-    pos, colour, colour_names = f["all_positions"], f["all_colours"], f["colour_names"]
-    e_idx = f["episode"]
-    feats_z, feats_s, target, own_slot = f["types"], f["states"], f["positions"], f["own_slot"]
-    train = e_idx < E // 2
+    E = true.shape[0]
+    feats_z, feats_s, target, own_slot, labels = f["types"], f["states"], f["positions"], f["own_slot"], f["colours"]
+    train = f["episode"] < E // 2
     test = ~train
+    out = {
+        "type_invariance": _type_invariance(f["z"], f["owner"]),
+        **_identity_from_z(feats_z, labels, train, test),
+        "position_r2_from_s": ridge_probe(feats_s[train], target[train], feats_s[test], target[test]),
+        "position_r2_from_z": ridge_probe(feats_z[train], target[train], feats_z[test], target[test]),
+        "own_slot_share": float(own_slot.mean()),
+        "own_slot_by_colour": {f["colour_names"][c]: float(own_slot[labels == c].mean())
+                               for c in np.unique(labels)},
+        "shared_slot_pairs": shared_slot_pairs(f["owner"], f["background"], f["all_colours"], f["colour_names"]),
+        # NaN when either half holds fewer than 2 objects with a slot of their own (a tiny model)
+        "position_r2_own_slots": (ridge_probe(feats_s[train & own_slot], target[train & own_slot],
+                                              feats_s[test & own_slot], target[test & own_slot])
+                                  if min((train & own_slot).sum(), (test & own_slot).sum()) >= 2 else float("nan")),
+    }
+    transitions = _predicted_transitions(model, buffer, f)
+    out.update(_dynamics_scores(transitions, f, train, model.type_dim))
+    out.update({"episodes": int(E), "objects_matched": int(len(f["episode"])),
+                "transitions": int((transitions["moved_slot"] >= 0).sum()),
+                "restarts": int(restarts), "slots": int(f["slots"].shape[2])})
+    if model.can_render:
+        out.update(_render_scores(model, buffer["frames"], true, f["slots"], transitions))
+    out.update(_dvae_floor_scores(model, buffer["frames"], true, f["all_colours"], f["colour_names"]))
+    return out
 
-    # type invariance: the same slot across a transition vs two objects in one image
+
+def _type_invariance(z: np.ndarray, owner: np.ndarray) -> float:
+    """Mean |z| change of an object's slot across a transition over the mean |z| distance
+    between two objects' slots in one image (`factorization_scores`' type_invariance)."""
+    E, T = owner.shape[:2]
     moves, apart = [], []
     for e in range(E):
         for t in range(T):
@@ -410,77 +433,88 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
             if t + 1 < T:
                 for j in own:
                     moves.append(np.linalg.norm(z[e, t, j] - z[e, t + 1, j]))
-    # identity: nearest colour centroid of z
-    labels = f["colours"]
+    return float(np.mean(moves) / np.mean(apart))
+
+
+def _identity_from_z(feats_z, labels, train, test) -> dict:
+    """Nearest colour-centroid accuracy of an object's colour from z, fitted on `train`,
+    scored on `test`, with its chance level."""
     classes = np.unique(labels[train])
     centroids = np.stack([feats_z[train][labels[train] == c].mean(0) for c in classes])
     guess = classes[np.linalg.norm(feats_z[test][:, None] - centroids[None], axis=-1).argmin(1)]
+    return {"identity_from_z": float((guess == labels[test]).mean()),
+            "identity_chance": float(1.0 / len(classes))}
 
-    # dynamics over every transition t -> t+1
+
+def _predicted_transitions(model, buffer: dict, f: dict) -> dict:
+    """The dynamics' prediction at every transition t -> t+1 of the matched videos: the
+    current and predicted slots (M, K, D), the episode and step of each, the object the
+    action moved (-1: a no-op) and that object's slot."""
+    E, T = f["owner"].shape[:2]
     actions = torch.as_tensor(np.asarray(buffer["actions"]), dtype=torch.float32)   # (E, T-1, 6)
-    now = slots[:, :-1].flatten(0, 1)                                  # (M, K, D)
+    now = f["slots"][:, :-1].flatten(0, 1)                             # (M, K, D)
     pred = torch.cat([model.predict(now[i:i + 500].to(model.device),
                                     actions.flatten(0, 1)[i:i + 500].to(model.device)).cpu().float()
                       for i in range(0, len(now), 500)])
-    change = (pred[..., Dz:] - now[..., Dz:]).norm(dim=-1).numpy()     # (M, K)
     moved = np.asarray(buffer["moved"]).reshape(-1)                    # (M,) object index
-    ep = np.repeat(np.arange(E), T - 1)
-    tt = np.tile(np.arange(T - 1), E)
-    moved_slot = np.where(moved >= 0, owner[ep, tt, np.maximum(moved, 0)], -1)   # -1: a no-op
+    ep, tt = np.repeat(np.arange(E), T - 1), np.tile(np.arange(T - 1), E)
+    moved_slot = np.where(moved >= 0, f["owner"][ep, tt, np.maximum(moved, 0)], -1)   # -1: a no-op
+    return {"now": now, "pred": pred, "ep": ep, "tt": tt, "moved": moved, "moved_slot": moved_slot}
+
+
+def _dynamics_scores(tr: dict, f: dict, train, type_dim: int) -> dict:
+    """Does the predicted state change fall on the moved object's slot, and does the
+    s-probe read the moved object's next position from the predicted s (against reading it
+    from the current s: predict no change)?"""
+    Dz, E = type_dim, f["owner"].shape[0]
+    now, pred, ep, tt, moved, moved_slot = (tr[n] for n in ("now", "pred", "ep", "tt", "moved", "moved_slot"))
+    change = (pred[..., Dz:] - now[..., Dz:]).norm(dim=-1).numpy()     # (M, K)
     ok = moved_slot >= 0
     largest = change.argmax(1)[ok]                                     # the slot it moves most
     hits = largest == moved_slot[ok]
-    misses_objectless = ~(owner[ep, tt][ok] == largest[:, None]).any(1)[~hits]   # no object's slot
-    read_pos = _ridge_fit(feats_s[train], target[train])
+    misses_objectless = ~(f["owner"][ep, tt][ok] == largest[:, None]).any(1)[~hits]   # no object's slot
+    read_pos = _ridge_fit(f["states"][train], f["positions"][train])
     m_test = ok & (ep >= E // 2)
-    next_pos = pos[ep, tt + 1, moved][m_test]
+    next_pos = f["all_positions"][ep, tt + 1, moved][m_test]
     pred_s = pred[..., Dz:].numpy()[m_test, moved_slot[m_test]]
     cur_s = now[..., Dz:].numpy()[m_test, moved_slot[m_test]]
+    return {"moved_slot_accuracy": float(hits.mean()),
+            "moved_slot_chance": float(1.0 / f["slots"].shape[2]),
+            "moved_misses_objectless": float(misses_objectless.mean()) if len(misses_objectless) else 0.0,
+            "predicted_position_r2": _r2(read_pos(pred_s), next_pos),
+            "no_change_position_r2": _r2(read_pos(cur_s), next_pos)}
 
-    out = {
-        "type_invariance": float(np.mean(moves) / np.mean(apart)),
-        "identity_from_z": float((guess == labels[test]).mean()),
-        "identity_chance": float(1.0 / len(classes)),
-        "position_r2_from_s": ridge_probe(feats_s[train], target[train], feats_s[test], target[test]),
-        "position_r2_from_z": ridge_probe(feats_z[train], target[train], feats_z[test], target[test]),
-        "own_slot_share": float(own_slot.mean()),
-        "own_slot_by_colour": {colour_names[c]: float(own_slot[labels == c].mean())
-                               for c in np.unique(labels)},
-        "shared_slot_pairs": shared_slot_pairs(owner, f["background"], colour, colour_names),
-        # NaN when either half holds fewer than 2 objects with a slot of their own (a tiny model)
-        "position_r2_own_slots": (ridge_probe(feats_s[train & own_slot], target[train & own_slot],
-                                              feats_s[test & own_slot], target[test & own_slot])
-                                  if min((train & own_slot).sum(), (test & own_slot).sum()) >= 2 else float("nan")),
-        "moved_slot_accuracy": float(hits.mean()),
-        "moved_slot_chance": float(1.0 / K),
-        "moved_misses_objectless": float(misses_objectless.mean()) if len(misses_objectless) else 0.0,
-        "predicted_position_r2": _r2(read_pos(pred_s), next_pos),
-        "no_change_position_r2": _r2(read_pos(cur_s), next_pos),
-        "episodes": int(E), "objects_matched": int(len(e_idx)), "transitions": int(ok.sum()),
-        "restarts": int(restarts), "slots": int(K),
-    }
 
+def _render_scores(model, frames, true, slots, tr: dict) -> dict:
+    """Pixel errors of the images drawn from the slots alone (`DSlate.render`): on the
+    objects' pixels against the empty floor's, and the frame drawn from the predicted slots
+    on the moved object's pixels against the current frame (no change)."""
+    E, T, k = true.shape[:3]
     images = frames.reshape(E * T, *frames.shape[2:]).astype(np.float64) / 255.0
-    flat_true = true.reshape(E * T, k, *true.shape[3:])
-    if model.can_render:
-        drawn = np.concatenate([model.render(slots.flatten(0, 1)[i:i + 200].to(model.device)).cpu().numpy()
-                                for i in range(0, E * T, 200)]).astype(np.float64)
-        fg = flat_true.any(1)                                          # (E*T, H, W)
-        floor = np.median(images.reshape(E * T, -1, 3), axis=1)[:, None, None]
-        out["render_fg_error"] = float(np.abs(drawn - images).mean(-1)[fg].mean())
-        out["floor_fg_error"] = float(np.abs(floor - images).mean(-1)[fg].mean())
-        nxt = np.concatenate([model.render(pred[i:i + 200].to(model.device)).cpu().numpy()
-                              for i in range(0, len(pred), 200)]).astype(np.float64)
-        cur_img = frames[:, :-1].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
-        next_img = frames[:, 1:].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
-        region = true[ep, tt, moved] | true[ep, tt + 1, moved]         # (M, H, W)
-        out["predicted_render_error"] = float(np.abs(nxt - next_img).mean(-1)[region].mean())
-        out["no_change_error"] = float(np.abs(cur_img - next_img).mean(-1)[region].mean())
+    drawn = np.concatenate([model.render(slots.flatten(0, 1)[i:i + 200].to(model.device)).cpu().numpy()
+                            for i in range(0, E * T, 200)]).astype(np.float64)
+    fg = true.reshape(E * T, k, *true.shape[3:]).any(1)                # (E*T, H, W)
+    floor = np.median(images.reshape(E * T, -1, 3), axis=1)[:, None, None]
+    pred, ep, tt, moved = tr["pred"], tr["ep"], tr["tt"], tr["moved"]
+    nxt = np.concatenate([model.render(pred[i:i + 200].to(model.device)).cpu().numpy()
+                          for i in range(0, len(pred), 200)]).astype(np.float64)
+    cur_img = frames[:, :-1].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
+    next_img = frames[:, 1:].reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0
+    region = true[ep, tt, moved] | true[ep, tt + 1, moved]             # (M, H, W)
+    return {"render_fg_error": float(np.abs(drawn - images).mean(-1)[fg].mean()),
+            "floor_fg_error": float(np.abs(floor - images).mean(-1)[fg].mean()),
+            "predicted_render_error": float(np.abs(nxt - next_img).mean(-1)[region].mean()),
+            "no_change_error": float(np.abs(cur_img - next_img).mean(-1)[region].mean())}
+
+
+def _dvae_floor_scores(model, frames, true, colour, colour_names) -> dict:
+    """Per colour, the share of its pixels the dVAE round trip paints nearer the floor than
+    the colour, and the largest share."""
+    E, T, k = true.shape[:3]
+    images = frames.reshape(E * T, *frames.shape[2:]).astype(np.float64) / 255.0
     recon = np.concatenate([model.reconstruct(frames.reshape(E * T, *frames.shape[2:])[i:i + 200]).cpu().numpy()
                             for i in range(0, E * T, 200)]).astype(np.float64)
-    lost = _floor_pixels(recon, images, flat_true)                     # (E*T, k)
+    lost = _floor_pixels(recon, images, true.reshape(E * T, k, *true.shape[3:]))   # (E*T, k)
     ids = np.repeat(colour, T, axis=0)                                 # (E*T, k)
     by_colour = {colour_names[c]: float(np.nanmean(lost[ids == c])) for c in np.unique(ids)}
-    out["dvae_floor_by_colour"] = by_colour
-    out["dvae_floor_max"] = max(by_colour.values())
-    return out
+    return {"dvae_floor_by_colour": by_colour, "dvae_floor_max": max(by_colour.values())}

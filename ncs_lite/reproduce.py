@@ -129,77 +129,21 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     states = ("mask", "slot") if block else (STATE_BY_ENV[env],)
     env_ncs = {"clusters": clusters, "edge_action": EDGE_ACTION_BY_ENV[env]}
     base = ncs_config(ncs_overrides, state=states[0], **env_ncs)     # Table 3's state of the env first
-    train_episodes = TRAIN_EPISODES[preset]
     graph_episodes = graph_episodes or graph_episodes_of(preset, env)
     images = images or (20 if preset == "ci" else 200)
-    data = cached_buffer(train_episodes, env=env, num_objects=4, seed=0)
+    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=0)
     rows = []
     for seed in seeds:
         folder = runs / f"{preset}-seed-{seed}"
-        ckpt_path = folder / "dslate.pt"
-        cfg = apply_overrides(get_preset(preset, env), overrides)
-        cfg.train.seed = int(seed)
-        if ckpt_path.exists():
-            _keep_for_extending(ckpt_path, cfg)
-        bases = sorted(folder.glob("dslate-step-*.pt"), key=lambda p: int(p.stem.rsplit("-", 1)[1]))
-        done = ckpt_path.exists() and int(read_checkpoint(ckpt_path)["step"]) >= cfg.train.total_steps()
-        if not done and not ckpt_path.exists() and bases:
-            print(f"seed {seed}: extending {bases[-1]} -> {ckpt_path}", flush=True)
-            train(cfg, data, ckpt_path, extend=bases[-1], env=env, overrides=overrides)
-        elif not done:
-            print(f"seed {seed}: training {preset} -> {ckpt_path}", flush=True)
-            train(cfg, data, ckpt_path, resume=ckpt_path.exists(), env=env, overrides=overrides)
-        ckpt = read_checkpoint(ckpt_path)
-        model = load_dslate(ckpt_path)
-        ckpt_hash = sha256_file(ckpt_path)
-
+        ckpt_path = _trained_seed(folder, preset, env, overrides, seed, data)
+        ckpt, model, ckpt_hash = read_checkpoint(ckpt_path), load_dslate(ckpt_path), sha256_file(ckpt_path)
         row = {"seed": seed, "train_minutes": round(float(ckpt["seconds"]) / 60, 1),
                "commit": (ckpt.get("code_version") or {}).get("commit")}
-        heldout = cached_buffer(100, env=env, num_objects=4, seed=HELDOUT_SEED)
-        row["heldout_error"] = round(_stage(folder / "heldout-error.json", {"checkpoint": ckpt_hash, "images": images},
-                                            lambda: heldout_reconstruction_error(model, env, images)), 4)
-        split = _stage(folder / "factorization.json", {"checkpoint": ckpt_hash, "episodes": 100},
-                       lambda: factorization_scores(model, load_buffer(heldout)))
-        row.update({f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS})
-        # the same read with the restarts NCS acts with (on each video's first frame)
-        acting = acting_restarts(base, model)
-        split = _stage(folder / f"factorization-r{acting}.json", {"checkpoint": ckpt_hash, "episodes": 100},
-                       lambda: factorization_scores(model, load_buffer(heldout), restarts=acting))
-        row.update({f"split_r{acting}_{m}": round(split[m], 4) for m in SPLIT_METRICS_RESTARTS})
-        for k in (4, 7):
-            for restarts in (1, acting):
-                seg = _stage(folder / f"segmentation-k{k}-r{restarts}.json",
-                             {"checkpoint": ckpt_hash, "images": images},
-                             lambda: segmentation_scores(model, k, images, restarts, env=env))
-                row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
-                row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
-                row[f"shared_{k}_r{restarts}"] = round(seg["shared"], 4)
-                row[f"pairs_{k}_r{restarts}"] = ", ".join(f"{p} {n}" for p, n in seg["pairs"][:3])
+        row.update(_segmentation_columns(folder, model, ckpt_hash, env, images, acting_restarts(base, model)))
         for state in states:
             ncs = ncs_config(ncs_overrides, state=state, **env_ncs)
             suffix = "_slot" if block and state == "slot" else ""
-            graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
-            graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
-                         "code": source_hash(*STAGE_CODE)}
-            graph = _graph_stage(graph_path, graph_key, ncs, model, cached_buffer(graph_episodes, env=env, seed=0),
-                                 f"seed {seed}: graph on {state} states")
-            row[f"graph_edges{suffix}"] = graph.num_edges
-            row[f"coverage{suffix}"] = round(graph.info.get("coverage", float("nan")), 4)
-            for k in objects:
-                tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
-
-                def run_ncs():
-                    return summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=ncs),
-                                              tasks, "ncs"))[0]
-
-                s = _stage(folder / f"ncs{suffix.replace('_', '-')}-k{k}.json",
-                           {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks)}, run_ncs)
-                row[f"ncs{suffix}_{k}"] = s["success"]
-                row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
-                _constraints(row, f"ncs{suffix}_{k}", s)
-                row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
-                for share in ("noop", "placed", "picked_nothing", "refused"):
-                    row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
+            row.update(_ncs_columns(folder, model, ckpt_hash, ncs, suffix, env, graph_episodes, objects, episodes))
         rows.append(row)
         print(json.dumps(row), flush=True)
     if not block:     # the references of the same tasks, which no training seed changes
@@ -219,6 +163,81 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     write_table(table_name("seeds", env, preset), rows, meta, out_dir,
                 allow_dirty)
     return {"rows": rows, "summary": summary, "shipped_seed": shipped}
+
+
+def _trained_seed(folder: Path, preset: str, env: str, overrides, seed: int, data) -> Path:
+    """`folder`/dslate.pt: `preset` (+ `overrides`) trained with training seed `seed` on the
+    buffer at `data`; a finished run is kept, a partial one resumed, and a run that lacks only
+    the recipe's later phases (`dslate-step-N.pt`, `_keep_for_extending`) extended."""
+    ckpt_path = folder / "dslate.pt"
+    cfg = apply_overrides(get_preset(preset, env), overrides)
+    cfg.train.seed = int(seed)
+    if ckpt_path.exists():
+        _keep_for_extending(ckpt_path, cfg)
+    bases = sorted(folder.glob("dslate-step-*.pt"), key=lambda p: int(p.stem.rsplit("-", 1)[1]))
+    done = ckpt_path.exists() and int(read_checkpoint(ckpt_path)["step"]) >= cfg.train.total_steps()
+    if not done and not ckpt_path.exists() and bases:
+        print(f"seed {seed}: extending {bases[-1]} -> {ckpt_path}", flush=True)
+        train(cfg, data, ckpt_path, extend=bases[-1], env=env, overrides=overrides)
+    elif not done:
+        print(f"seed {seed}: training {preset} -> {ckpt_path}", flush=True)
+        train(cfg, data, ckpt_path, resume=ckpt_path.exists(), env=env, overrides=overrides)
+    return ckpt_path
+
+
+def _segmentation_columns(folder: Path, model, ckpt_hash: str, env: str, images: int, acting: int) -> dict:
+    """A seed's columns that read slots, not tasks: the held-out reconstruction error (the
+    shipping rule), the type/state split's metrics with one start and with the `acting`
+    restarts NCS acts with, and fg-ARI, absorbed and shared cubes at 4 and 7 objects."""
+    heldout = cached_buffer(100, env=env, num_objects=4, seed=HELDOUT_SEED)
+    row = {"heldout_error": round(_stage(folder / "heldout-error.json", {"checkpoint": ckpt_hash, "images": images},
+                                         lambda: heldout_reconstruction_error(model, env, images)), 4)}
+    split = _stage(folder / "factorization.json", {"checkpoint": ckpt_hash, "episodes": 100},
+                   lambda: factorization_scores(model, load_buffer(heldout)))
+    row.update({f"split_{m}": round(v, 4) for m, v in split.items() if m in SPLIT_METRICS})
+    # the same read with the restarts NCS acts with (on each video's first frame)
+    split = _stage(folder / f"factorization-r{acting}.json", {"checkpoint": ckpt_hash, "episodes": 100},
+                   lambda: factorization_scores(model, load_buffer(heldout), restarts=acting))
+    row.update({f"split_r{acting}_{m}": round(split[m], 4) for m in SPLIT_METRICS_RESTARTS})
+    for k in (4, 7):
+        for restarts in (1, acting):
+            seg = _stage(folder / f"segmentation-k{k}-r{restarts}.json", {"checkpoint": ckpt_hash, "images": images},
+                         lambda: segmentation_scores(model, k, images, restarts, env=env))
+            row[f"fg_ari_{k}_r{restarts}"] = round(seg["fg_ari"], 4)
+            row[f"absorbed_{k}_r{restarts}"] = round(seg["absorbed"], 4)
+            row[f"shared_{k}_r{restarts}"] = round(seg["shared"], 4)
+            row[f"pairs_{k}_r{restarts}"] = ", ".join(f"{p} {n}" for p, n in seg["pairs"][:3])
+    return row
+
+
+def _ncs_columns(folder: Path, model, ckpt_hash: str, ncs, suffix: str, env: str, graph_episodes: int,
+                 objects, episodes: int) -> dict:
+    """A seed's columns for one state kind (`ncs.state`; `suffix` names its columns): the
+    graph from the buffer's first `graph_episodes` episodes, then NCS on `episodes` seeded
+    tasks per count in `objects` (complete goals, 4x) with its interval, constraints
+    satisfied and the shares of its decisions."""
+    graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
+    graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
+                 "code": source_hash(*STAGE_CODE)}
+    graph = _graph_stage(graph_path, graph_key, ncs, model, cached_buffer(graph_episodes, env=env, seed=0),
+                         f"{folder.name}: graph on {ncs.state} states")
+    row = {f"graph_edges{suffix}": graph.num_edges,
+           f"coverage{suffix}": round(graph.info.get("coverage", float("nan")), 4)}
+    for k in objects:
+        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
+
+        def run_ncs():
+            return summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=ncs), tasks, "ncs"))[0]
+
+        s = _stage(folder / f"ncs{suffix.replace('_', '-')}-k{k}.json",
+                   {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks)}, run_ncs)
+        row[f"ncs{suffix}_{k}"] = s["success"]
+        row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+        _constraints(row, f"ncs{suffix}_{k}", s)
+        row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
+        for share in ("noop", "placed", "picked_nothing", "refused"):
+            row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
+    return row
 
 
 def heldout_reconstruction_error(model, env: str, images: int = 200) -> float:

@@ -88,7 +88,7 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
     assert weights == [(cfg.train.polish_foreground_weight, cfg.train.polish_mixture_error)] * 2
     assert all(torch.equal(before[k], after["model"][k]) for k in before if k.startswith("dvae."))
     assert not torch.equal(before["slot_attn.mu"], after["model"]["slot_attn.mu"])
-    with pytest.raises(ValueError, match="polish_steps must be >= 0"):
+    with pytest.raises(ValueError, match="train.polish_steps must be an integer >= 0, got -1"):
         ci(polish_steps=-1).validate()
     with pytest.raises(ValueError, match="train.polish_mixture_error must be 'mixed' or 'per_slot', got 'blend'"):
         ci(polish_mixture_error="blend").validate()
@@ -399,7 +399,7 @@ def test_the_colour_augmentations_are_the_configs_choices():
     with pytest.raises(ValueError, match=r"^train\.color_augment must be a string, got 3$"):
         cfg.validate()
     cfg.train.color_augment = "hue"
-    with pytest.raises(ValueError, match=r"train\.color_augment must be one of 'none', 'channels', 'channels_gamma'"):
+    with pytest.raises(ValueError, match=r"train\.color_augment must be 'none', 'channels' or 'channels_gamma', got 'hue'"):
         cfg.validate()
 
 

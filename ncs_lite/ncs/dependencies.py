@@ -125,25 +125,12 @@ def select_dependent(current_nodes: np.ndarray, current_on: np.ndarray, goal_nod
     pairs and their isolate distances (P,). A pair with an entity off the graph (the floor's
     slots) is no constraint: it is never in place, satisfiable or pending."""
     constraint = current_on[current_index] & goal_on[goal_index]
-    above: list[list[int]] = [[] for _ in supports]        # above[n]: the nodes n supports
-    for m, under in enumerate(supports):
-        for n in under:
-            above[n].append(m)
+    above, holder = _stacks(current_nodes, current_on, supports)
     objects = [c for c in range(len(current_nodes)) if current_on[c]]
-    holder: dict[int, list[int]] = {}
-    for c in objects:
-        holder.setdefault(int(current_nodes[c]), []).append(c)
     src = current_nodes[current_index].astype(int)
     dst = goal_nodes[goal_index].astype(int)
     pairs = range(len(src))
-
-    in_place = (src == dst) & constraint
-    while True:                       # a pair in place needs its supports held by pairs in place
-        placed_nodes = {int(src[j]) for j in pairs if in_place[j]}
-        keep = np.array([in_place[j] and all(s in placed_nodes for s in supports[dst[j]]) for j in pairs], bool)
-        if (keep == in_place).all():
-            break
-        in_place = keep
+    in_place = _pairs_in_place(src, dst, constraint, supports)
     placed_nodes = {int(src[j]) for j in pairs if in_place[j]}
 
     def on_top(c: int) -> bool:
@@ -195,3 +182,32 @@ def select_dependent(current_nodes: np.ndarray, current_on: np.ndarray, goal_nod
             if decision is not None:
                 return decision
     return Decision(None, None, None, None, None, None, in_place, satisfiable)
+
+
+def _stacks(current_nodes: np.ndarray, current_on: np.ndarray,
+            supports: list[list[int]]) -> tuple[list[list[int]], dict[int, list[int]]]:
+    """above[n]: the nodes node n supports; holder[n]: the current entities (on the graph)
+    at node n."""
+    above: list[list[int]] = [[] for _ in supports]
+    for m, under in enumerate(supports):
+        for n in under:
+            above[n].append(m)
+    holder: dict[int, list[int]] = {}
+    for c in range(len(current_nodes)):
+        if current_on[c]:
+            holder.setdefault(int(current_nodes[c]), []).append(c)
+    return above, holder
+
+
+def _pairs_in_place(src: np.ndarray, dst: np.ndarray, constraint: np.ndarray,
+                    supports: list[list[int]]) -> np.ndarray:
+    """The constraint pairs whose entity is at its goal node with every support of that node
+    held by a pair in place too (a fixed point: a cube on a wrong base is not in place)."""
+    pairs = range(len(src))
+    in_place = (src == dst) & constraint
+    while True:
+        placed_nodes = {int(src[j]) for j in pairs if in_place[j]}
+        keep = np.array([in_place[j] and all(s in placed_nodes for s in supports[dst[j]]) for j in pairs], bool)
+        if (keep == in_place).all():
+            return in_place
+        in_place = keep
