@@ -51,7 +51,7 @@ reproduce: $(STAMP)
 	  echo "== $$nb (preset=$(PRESET))"; start=$$(date +%s.%N); \
 	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
 	    $$nb $(BUILD)/notebooks/$$(basename $$nb) || exit 1; \
-	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
 	# notebooks 04-07 once more on robogym-rearrange: same parameters but `env`; executed
@@ -60,7 +60,7 @@ reproduce: $(STAMP)
 	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=robogym-rearrange)"; start=$$(date +%s.%N); \
 	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
 	    -p env robogym-rearrange $$nb $(BUILD)/notebooks/$${name}_robogym.ipynb || exit 1; \
-	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $${name}_robogym $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
 	# ... and on block-stacking: executed copies <name>_stacking.ipynb, figures in
@@ -69,12 +69,12 @@ reproduce: $(STAMP)
 	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=block-stacking)"; start=$$(date +%s.%N); \
 	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
 	    -p env block-stacking $$nb $(BUILD)/notebooks/$${name}_stacking.ipynb || exit 1; \
-	  $(PY) -c "import sys; from ncs_lite.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $${name}_stacking $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
 	# the whole run's time, when it ran every notebook (not NOTEBOOKS=... from the command line)
 	if [ "$(origin NOTEBOOKS)$(origin ENV_NOTEBOOKS)" = "filefile" ]; then \
-	  $(PY) -c "import os, sys; from ncs_lite.reproduce import record_run_time as r; now, start = map(float, sys.argv[1:3]); \
+	  $(PY) -c "import os, sys; from ncs_lite.experiments.reproduce import record_run_time as r; now, start = map(float, sys.argv[1:3]); \
 	    r(now - start, os.path.getmtime(sys.argv[3]) >= start, sys.argv[4] == '0', sys.argv[5])" \
 	    $$(date +%s.%N) $(MAKE_START) $(STAMP) $(CACHE_AT_START) $(PRESET) || exit 1; fi
 	@echo "figures written to figures/; executed notebooks in $(BUILD)/notebooks/"

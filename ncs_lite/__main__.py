@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import reproduce
+from .experiments import reproduce
 from .baselines import MPC_PRESETS, SetGraph
 from .baselines.nf import set_graph_from_transitions
 from .baselines.runs import load_trained_policy, policy_config, train_policy
@@ -355,7 +355,7 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--oracle-graph", help="robogym, stacking: the position oracle's graph (default: the shipped one)")
     p.add_argument("--episodes", type=int, default=None,
                    help="tasks per object count (default: 100; baselines: the preset's, reduced 50); fig10, fig11: "
-                   "tasks per point (default: the preset's, ncs_lite.stress.TASKS)")
+                   "tasks per point (default: the preset's, ncs_lite.experiments.stress.TASKS)")
     p.add_argument("--mpc-episodes", type=int, default=None,
                    help="baselines: MPC's tasks per object count (default: the preset's, reduced 25); fig10, "
                    "fig11: MPC's tasks per point")

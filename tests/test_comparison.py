@@ -2,7 +2,7 @@
 what a serial run returns."""
 import pytest
 
-from ncs_lite.comparison import run_comparison
+from ncs_lite.experiments.comparison import run_comparison
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_map_jobs_refuses_a_start_order_that_is_not_one():
 
 
 def test_robogym_comparison_runs_every_method_from_the_shipped_assets():
-    from ncs_lite.comparison import COMPARED, comparison_assets
+    from ncs_lite.experiments.comparison import COMPARED, comparison_assets
 
     assets = comparison_assets("reduced", env="robogym-rearrange")
     assert assets["ncs"].state == "slot" and assets["ncs"].edge_action == "readout" and assets["ncs"].clusters == 45

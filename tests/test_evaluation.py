@@ -133,7 +133,7 @@ def test_cli_evaluate_reports_both_measures(tmp_path, capsys):
 
 
 def test_table_rows_carry_the_constraints_beside_success():
-    from ncs_lite.reproduce import _constraints
+    from ncs_lite.experiments.reproduce import _constraints
 
     row = {"ncs_4": 0.5}
     _constraints(row, "ncs_4", {"constraints": 0.71234, "constraints_ci_low": 0.6, "constraints_ci_high": 0.8})

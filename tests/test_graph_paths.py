@@ -5,9 +5,9 @@ import sys
 
 import pytest
 
-import ncs_lite.comparison  # noqa: F401  (imported before the spy replaces the function in every module)
-import ncs_lite.hyperparameters  # noqa: F401
-import ncs_lite.reproduce  # noqa: F401
+import ncs_lite.experiments.comparison  # noqa: F401  (imported before the spy replaces the function in every module)
+import ncs_lite.experiments.hyperparameters  # noqa: F401
+import ncs_lite.experiments.reproduce  # noqa: F401
 from ncs_lite.__main__ import main
 from ncs_lite.data import collect
 from ncs_lite.inference import SHIPPED_CHECKPOINT
@@ -65,7 +65,7 @@ def test_seeds_table(received, tmp_path):
 
 
 def test_clusters_table(received, small_buffer, tmp_path):
-    from ncs_lite.reproduce import clusters_table
+    from ncs_lite.experiments.reproduce import clusters_table
 
     with pytest.raises(Built):         # the command reads the 5,000-episode buffer: here a small one
         clusters_table(clusters=(6,), data=small_buffer, overrides=OVERRIDES, out_dir=tmp_path)
@@ -92,7 +92,7 @@ def test_the_shipped_graphs_refuse_a_build_override(table, tmp_path, capsys):
 
 
 def test_graph_like_rebuilds_with_the_settings_the_graph_was_built_with(small_buffer, tmp_path):
-    from ncs_lite.hyperparameters import graph_like
+    from ncs_lite.experiments.hyperparameters import graph_like
     from ncs_lite.ncs.graph import TransitionGraph
 
     assert main(["graph", "--oracle", "--data", str(small_buffer), "--clusters", "6", "--out", str(tmp_path / "g.pt"),

@@ -4,7 +4,7 @@ import pytest
 from ncs_lite.config import NCSConfig, get_preset
 from ncs_lite.data import collect, load_buffer
 from ncs_lite.evaluation import learned_perception
-from ncs_lite.hyperparameters import graph_like
+from ncs_lite.experiments.hyperparameters import graph_like
 from ncs_lite.models import DSlate
 from ncs_lite.ncs.graph import TransitionGraph, build_graph
 from ncs_lite.ncs.perception import OraclePerception
@@ -58,7 +58,7 @@ def _rows(clusters, data, slots, episodes=100):
 
 
 def test_fig9_claims_read_the_gaps_between_points():
-    from ncs_lite.hyperparameters import fig9_claims
+    from ncs_lite.experiments.hyperparameters import fig9_claims
 
     rows = _rows({16: 40, 45: 90, 50: 60}, {2500: 30, 20000: 90}, {3: 10, 5: 100, 10: 99})
     verdicts = {c["statement"]: c["verdict"] for c in fig9_claims(rows)}

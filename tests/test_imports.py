@@ -29,11 +29,12 @@ LAYERS = (
     # measuring them: the task sets and success, segmentation and factorization measures
     ("measures", ("ncs_lite.evaluation", "ncs_lite.metrics")),
     # the main comparison and the results tables with the docs generated from them
-    ("results", ("ncs_lite.comparison", "ncs_lite.docs", "ncs_lite.tables")),
+    ("results", ("ncs_lite.experiments.comparison", "ncs_lite.docs", "ncs_lite.experiments.tables",
+                 "ncs_lite.experiments")),
     # Appendix D's experiments (Figs. 9-11)
-    ("appendix experiments", ("ncs_lite.stress", "ncs_lite.hyperparameters")),
+    ("appendix experiments", ("ncs_lite.experiments.stress", "ncs_lite.experiments.hyperparameters")),
     # what a reader runs: the tables, notebooks' figures, the book, exercises, benchmarks
-    ("entry points", ("ncs_lite.reproduce", "ncs_lite.figures", "ncs_lite.book", "ncs_lite.exercises",
+    ("entry points", ("ncs_lite.experiments.reproduce", "ncs_lite.figures", "ncs_lite.book", "ncs_lite.exercises",
                       "ncs_lite.bench")),
     # the command line, and the package itself (its lazy `ncs_lite.load_dslate`)
     ("command line", ("ncs_lite.__main__", "ncs_lite")),

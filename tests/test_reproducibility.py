@@ -10,7 +10,7 @@ from ncs_lite.__main__ import main
 from ncs_lite.config import NCSConfig, apply_overrides, get_preset, ncs_config
 from ncs_lite.data import collect
 from ncs_lite.inference import read_checkpoint
-from ncs_lite.reproduce import mean_sd
+from ncs_lite.experiments.reproduce import mean_sd
 from ncs_lite.training import run_lock, train
 
 
@@ -415,7 +415,7 @@ def test_out_that_is_a_directory_or_below_a_file_is_refused(buffer, tmp_path, ca
 
 
 def test_a_table_stage_is_reused_only_for_the_same_inputs_and_code(tmp_path, monkeypatch):
-    from ncs_lite import reproduce
+    from ncs_lite.experiments import reproduce
 
     calls = []
 
@@ -468,7 +468,7 @@ def test_code_keys_ignore_prose_but_not_code():
 def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipped_seed(tmp_path):
     """`reproduce seeds --env robogym-rearrange` at `ci`: slot states only (Table 3), 4-7
     objects, the oracle and Random on the same tasks, and the seed its rule ships."""
-    from ncs_lite.reproduce import seeds_table
+    from ncs_lite.experiments.reproduce import seeds_table
 
     out = seeds_table("ci", seeds=(0,), runs=tmp_path / "runs", episodes=1, images=4,
                       env="robogym-rearrange", out_dir=tmp_path / "tables", allow_dirty=True)

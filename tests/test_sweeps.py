@@ -58,7 +58,7 @@ def test_bad_executor_is_refused_in_one_line(executor):
 
 def test_reproduce_refuses_a_bad_executor_before_any_work():
     from ncs_lite.__main__ import build_parser
-    from ncs_lite.reproduce import check_table_args
+    from ncs_lite.experiments.reproduce import check_table_args
 
     args = build_parser().parse_args(["reproduce", "fig10", "--preset", "ci", "--executor", "dask"])
     with pytest.raises(ValueError, match=r"unknown executor 'dask'; expected one of 'local', 'submitit'"):
@@ -99,7 +99,7 @@ def cell(label, successes, episodes):
 
 
 def test_newcombe_interval_known_values():
-    from ncs_lite.stress import newcombe_interval
+    from ncs_lite.experiments.stress import newcombe_interval
 
     # Newcombe (1998), Table II, example (a): 56/70 - 48/80 -> 0.2 [0.0524, 0.3339]
     d, lo, hi = newcombe_interval(56, 70, 48, 80)
@@ -109,7 +109,7 @@ def test_newcombe_interval_known_values():
 
 
 def test_ratio_claim_with_a_denominator_above_zero():
-    from ncs_lite.stress import katz_ratio_interval, ratio_claim
+    from ncs_lite.experiments.stress import katz_ratio_interval, ratio_claim
 
     ratio, lo, hi = katz_ratio_interval(80, 100, 1, 100)
     se = math.sqrt(1 / 80 - 1 / 100 + 1 / 1 - 1 / 100)
@@ -123,7 +123,7 @@ def test_ratio_claim_with_a_denominator_above_zero():
 
 
 def test_ratio_claim_with_a_zero_denominator_reports_the_gap():
-    from ncs_lite.stress import newcombe_interval, ratio_claim
+    from ncs_lite.experiments.stress import newcombe_interval, ratio_claim
 
     claim = ratio_claim("50x", cell("ncs at 1x", 35, 50), cell("mpc at 8x", 0, 20), 50.0)
     d, lo, hi = newcombe_interval(35, 50, 0, 20)
@@ -137,7 +137,7 @@ def test_ratio_claim_with_a_zero_denominator_reports_the_gap():
 
 
 def test_gap_claims_and_their_combination():
-    from ncs_lite.stress import all_of, gap_claim
+    from ncs_lite.experiments.stress import all_of, gap_claim
 
     above = gap_claim("a > b", cell("a", 30, 40), cell("b", 5, 40), "greater")
     assert above["verdict"] == "held"
@@ -154,7 +154,7 @@ def test_gap_claims_and_their_combination():
 
 
 def test_fig10_claims_read_the_table_rows():
-    from ncs_lite.stress import _claims
+    from ncs_lite.experiments.stress import _claims
 
     def row(method, x, success, n):
         return {"method": method, "varied": "horizon_multiplier", "x": x, "episodes": n, "success": success}
@@ -173,7 +173,7 @@ def test_fig10_claims_read_the_table_rows():
 
 def test_stress_cells_share_fig10s_cells_and_name_the_paper_reading():
     from ncs_lite.config import NCSConfig
-    from ncs_lite.stress import PAPER_NCS, cell_jobs
+    from ncs_lite.experiments.stress import PAPER_NCS, cell_jobs
 
     assets = {"ncs": NCSConfig(state="slot", clusters=45, edge_action="readout"), "model": object(),
               "graph": "g", "oracle_graph": "o", "nf_graph": "n", "bc": "bc", "iql": "iql"}
@@ -195,7 +195,7 @@ def test_stress_cells_share_fig10s_cells_and_name_the_paper_reading():
 
 
 def test_tasks_per_point_and_unknown_methods():
-    from ncs_lite.stress import TASKS, available, tasks_per_point
+    from ncs_lite.experiments.stress import TASKS, available, tasks_per_point
 
     assert tasks_per_point("ci") == {"tasks": 2, "mpc": 2}
     assert tasks_per_point("reduced")["tasks"] == 100 and tasks_per_point("paper") == {"tasks": 100, "mpc": 100}

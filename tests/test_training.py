@@ -427,7 +427,7 @@ def test_mixture_videos_train_slot_attention_and_leave_the_rest_on_the_true_fram
 
 
 def test_seeds_keep_a_run_of_an_earlier_recipe_to_extend_it(buffer, tmp_path):
-    from ncs_lite.reproduce import _keep_for_extending
+    from ncs_lite.experiments.reproduce import _keep_for_extending
 
     half = train(_no_renderer(render_steps=0), buffer, tmp_path / "half" / "dslate.pt", max_steps=2)
     with pytest.raises(ValueError, match="unfinished run of an earlier recipe"):

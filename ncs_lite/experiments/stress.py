@@ -28,13 +28,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from .baselines import mpc_config
+from ..baselines import mpc_config
+from ..config import STRESS_TASKS, to_dict
+from ..evaluation import METHODS, NEEDS, TaskSet, evaluate_job, summarize, wilson_interval
+from ..sweeps import check_executor, require_submitit, run_sweep
+from ..utils import provenance, relative_to_repo, sha256_file
 from .comparison import COMPARED, PAPER_NCS, comparison_assets
-from .config import STRESS_TASKS, to_dict
-from .evaluation import METHODS, NEEDS, TaskSet, evaluate_job, summarize, wilson_interval
-from .sweeps import check_executor, require_submitit, run_sweep
 from .tables import table_dir, write_table
-from .utils import provenance, relative_to_repo, sha256_file
 
 __all__ = ["FIGURES", "PAPER_NCS", "TASKS", "VARIANTS", "all_of", "available", "cell_jobs",
            "gap_claim", "katz_ratio_interval", "newcombe_interval", "ratio_claim", "stress_table", "tasks_per_point"]

@@ -20,17 +20,17 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, replace
 
-from .cache import buffer_digest, cached, code_digest
+from ..cache import buffer_digest, cached, code_digest
+from ..config import NCSConfig, to_dict
+from ..data import load_manifest
+from ..evaluation import TaskSet, evaluate_job, summarize
+from ..ncs.graph import TransitionGraph, graph_from_buffer
+from ..ncs.perception import graph_perception
+from ..sweeps import check_executor, run_sweep
+from ..utils import REPO_DIR, provenance, relative_to_repo
 from .comparison import comparison_assets
-from .config import NCSConfig, to_dict
-from .data import load_manifest
-from .evaluation import TaskSet, evaluate_job, summarize
-from .ncs.graph import TransitionGraph, graph_from_buffer
-from .ncs.perception import graph_perception
 from .stress import all_of, gap_claim
-from .sweeps import check_executor, run_sweep
 from .tables import table_dir, write_table
-from .utils import REPO_DIR, provenance, relative_to_repo
 
 __all__ = ["AXES", "fig9_jobs", "fig9_table", "graph_like"]
 

@@ -9,8 +9,8 @@ import csv
 import io
 from pathlib import Path
 
-from .docs import write_docs
-from .utils import atomic_write_json, atomic_write_text, figures_dir, provenance
+from ..docs import write_docs
+from ..utils import atomic_write_json, atomic_write_text, figures_dir, provenance
 
 __all__ = ["table_dir", "write_table"]
 

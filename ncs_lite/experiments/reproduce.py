@@ -4,10 +4,10 @@
               and NCS success; mean ± sd over seeds beside each seed's Wilson interval
     clusters  NCS success against the number of graph nodes on the shipped checkpoint
     baselines every method (NCS, its oracle, NF, MPC, BC, IQL, Random) at 4..7 objects,
-              complete and partial goals, on the same tasks (`ncs_lite.comparison`)
-    fig9      NCS against its clusters, graph data and slots (`ncs_lite.hyperparameters`)
-    fig10     success against the interaction horizon, NCS and the baselines (`ncs_lite.stress`)
-    fig11     success against action noise, and NCS against the horizon (`ncs_lite.stress`)
+              complete and partial goals, on the same tasks (`ncs_lite.experiments.comparison`)
+    fig9      NCS against its clusters, graph data and slots (`ncs_lite.experiments.hyperparameters`)
+    fig10     success against the interaction horizon, NCS and the baselines (`ncs_lite.experiments.stress`)
+    fig11     success against action noise, and NCS against the horizon (`ncs_lite.experiments.stress`)
 
 Each writes `figures/tables/<table>.csv` (one row per seed or point) and `<table>.json` (the
 rows, the summary and the provenance: commit, inputs with their hashes, parameters). Every
@@ -26,26 +26,26 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TASKS_BY_ENV, NCSConfig, apply_overrides, from_dict,
+                     get_preset, ncs_config, parse_override, saved_config_diff, to_dict)
+from ..data import cached_buffer, load_buffer, manifest_hash
+from ..docs import write_docs
+from ..envs.block_stacking import BlockStackingConfig
+from ..evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
+from ..inference import SHIPPED_CHECKPOINT, TRAIN_EPISODES, load_dslate, read_checkpoint, shipped_asset
+from ..metrics import HELDOUT_SEED, factorization_scores, segmentation_scores
+from ..ncs.dependencies import RULES
+from ..ncs.graph import TransitionGraph, graph_from_buffer
+from ..ncs.perception import acting_restarts
+from ..sweeps import check_executor
+from ..training import EXTENDABLE, train
+from ..utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress,
+                    provenance, relative_to_repo, sha256_file, source_hash)
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
                          run_comparison)
-from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, STATE_BY_ENV, TASKS_BY_ENV, NCSConfig, apply_overrides, from_dict,
-                     get_preset, ncs_config, parse_override, saved_config_diff, to_dict)
-from .data import cached_buffer, load_buffer, manifest_hash
-from .docs import write_docs
-from .envs.block_stacking import BlockStackingConfig
-from .evaluation import TaskSet, agent_factory, evaluate, evaluate_methods, summarize, write_csv
 from .hyperparameters import AXES, fig9_table
-from .inference import SHIPPED_CHECKPOINT, TRAIN_EPISODES, load_dslate, read_checkpoint, shipped_asset
-from .metrics import HELDOUT_SEED, factorization_scores, segmentation_scores
-from .ncs.dependencies import RULES
-from .ncs.graph import TransitionGraph, graph_from_buffer
-from .ncs.perception import acting_restarts
 from .stress import TASKS, stress_table
-from .sweeps import check_executor
 from .tables import table_dir, write_table
-from .training import EXTENDABLE, train
-from .utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress,
-                    provenance, relative_to_repo, sha256_file, source_hash)
 
 __all__ = ["TABLES", "run_table", "seeds_table", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
@@ -63,7 +63,7 @@ def mean_sd(values) -> dict:
 
 # the sources a stage's value depends on: any edit there recomputes every stage
 STAGE_CODE = ("envs", "models", "ncs", "baselines", "data", "evaluation.py", "config.py", "metrics.py",
-              "inference.py", "reproduce.py")
+              "inference.py", "experiments/reproduce.py")
 
 
 def _constraints(row: dict, name: str, summary: dict) -> None:
@@ -557,7 +557,7 @@ def check_table_args(name: str, args) -> None:
             config = BlockStackingConfig
         else:
             # local: robogym_rearrange imports MuJoCo, slow to load and needed by robogym alone
-            from .envs.robogym_rearrange import RobogymRearrangeConfig as config
+            from ..envs.robogym_rearrange import RobogymRearrangeConfig as config
         for k in args.objects:
             try:
                 config(num_objects=k)

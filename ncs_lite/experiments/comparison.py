@@ -14,17 +14,17 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .baselines import SetGraph, mpc_config, set_graph_from_transitions
-from .baselines.runs import load_trained_policy, obtain_policy
-from .config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, GRAPH_EPISODES_BY_ENV, STATE_BY_ENV, ncs_config,
+from ..baselines import SetGraph, mpc_config, set_graph_from_transitions
+from ..baselines.runs import load_trained_policy, obtain_policy
+from ..config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, GRAPH_EPISODES_BY_ENV, STATE_BY_ENV, ncs_config,
                      parse_override)
-from .data import cached_buffer
-from .evaluation import TaskSet, evaluate_methods
-from .inference import load_dslate, shipped_asset
-from .ncs.graph import (BUILD_FIELDS, TransitionGraph,
+from ..data import cached_buffer
+from ..evaluation import TaskSet, evaluate_methods
+from ..inference import load_dslate, shipped_asset
+from ..ncs.graph import (BUILD_FIELDS, TransitionGraph,
                         graph_from_buffer)
-from .ncs.perception import buffer_transitions, graph_perception, scene_slots
-from .training import obtain_dslate
+from ..ncs.perception import buffer_transitions, graph_perception, scene_slots
+from ..training import obtain_dslate
 
 __all__ = ["COMPARED", "PAPER_NCS", "comparison_assets", "run_comparison"]
 
