@@ -6,10 +6,13 @@ import numpy as np
 import pytest
 
 from ncs_lite.baselines import RandomObjectAgent
+from ncs_lite.config import ncs_config
 from ncs_lite.envs import make
 from ncs_lite.envs.common import outside_action_space
 from ncs_lite.evaluation import (COLUMNS, METHODS, NEEDS, PER_EPISODE, TaskSet, agent_factory, evaluate,
                                  mean_interval, satisfied_fraction, summarize, wilson_interval)
+from ncs_lite.inference import shipped_asset
+from ncs_lite.ncs.graph import TransitionGraph
 
 
 class MovesFirstToGoal:
@@ -138,3 +141,14 @@ def test_table_rows_carry_the_constraints_beside_success():
     row = {"ncs_4": 0.5}
     _constraints(row, "ncs_4", {"constraints": 0.71234, "constraints_ci_low": 0.6, "constraints_ci_high": 0.8})
     assert row == {"ncs_4": 0.5, "ncs_4_constraints": 0.7123, "ncs_4_constraints_ci": "[0.60, 0.80]"}
+
+
+def test_an_agent_refuses_a_graph_made_on_another_env():
+    """The shipped block-stacking oracle graph, used on block-rearrange tasks, is refused in
+    one line naming both envs; on its own env it runs."""
+    graph = TransitionGraph.load(shipped_asset("block-stacking", "ncs-oracle", "graph", "slot"))
+    factory = agent_factory("ncs-oracle", graph=graph, ncs=ncs_config(state="slot", dependencies=True))
+    with pytest.raises(ValueError, match="^ncs-oracle's graph was made on 'block-stacking', not 'block-rearrange'"):
+        evaluate(factory, TaskSet(env="block-rearrange", num_objects=3, episodes=1), "ncs-oracle")
+    rows = evaluate(factory, TaskSet(env="block-stacking", num_objects=3, episodes=1), "ncs-oracle")
+    assert len(rows) == 1 and rows[0]["env"] == "block-stacking"

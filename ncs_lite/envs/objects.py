@@ -10,7 +10,7 @@ from a package registry, so the kit's 94 are:
   69 of the 1000 procedurally generated objects in `pybullet_data/random_urdfs`: those
      whose outline seen from above covers the most of the square of their longest
      dimension (>= 78 %; `chunkiness`), since at 64 x 64 pixels a thin one would be a few
-     pixels or none (the rule is checked in tests/test_robogym.py).
+     pixels or none (the rule is checked in tests/envs/test_robogym_rearrange.py).
 
 `pybullet_data` is part of the `pybullet` wheel on PyPI (bullet3, zlib licence; the domino's
 own notice asks for a citation of PyBullet, given in the README's "Citation and licences").

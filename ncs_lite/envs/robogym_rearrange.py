@@ -20,7 +20,7 @@ Action `(w, dw)`: a Box of 6 floats `(wx, wy, wz, dwx, dwy, dwz)`; z is ignored.
 Placement is kinematic: MuJoCo computes the poses the camera draws but steps no physics, so
 an object keeps its orientation and place until it is moved (Appendix C); with a physics
 settle, untouched objects tipped and crept until footprints overlapped (docs/HISTORY.md,
-"robogym-rearrange: kinematic placement"). tests/test_robogym.py checks the simulator's
+"robogym-rearrange: kinematic placement"). tests/envs/test_robogym_rearrange.py checks the simulator's
 poses against the ones set.
 
 Tasks never fail to sample: footprints are drawn at random, largest first, and after 20 dead
@@ -30,7 +30,7 @@ A constraint holds when its object is within `success_threshold` (x, y) of its g
 
 Each object is one geom whose shape `_show` sets from a table of compiled shapes
 (`_shape_table`), and `TopCamera` renders the image and the masks with MuJoCo's low-level API,
-both for speed (docs/benchmarks.md, `bench envs`); tests/test_robogym.py pins a digest of what
+both for speed (docs/benchmarks.md, `bench envs`); tests/envs/test_robogym_rearrange.py pins a digest of what
 the env returns.
 
 Rendering: MuJoCo reads `MUJOCO_GL` when it is first imported. If it is unset, importing
