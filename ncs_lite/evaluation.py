@@ -22,7 +22,7 @@ from .baselines import (BCAgent, BCPolicy, IQLAgent, IQLNetworks, MPCAgent, MPCC
                         RandomObjectAgent, SetGraph)
 from .cache import cached, code_digest, digest
 from .config import NCSConfig
-from .envs import make
+from .envs import env_name, make
 from .envs.common import outside_action_space
 from .metrics import in_floor_slot, shared_with_another, slot_assignment
 from .ncs.graph import TransitionGraph
@@ -30,7 +30,7 @@ from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, Oracle
                              acting_slot_position, built_slot_position, scene_slots)
 from .ncs.policy import NCSAgent
 from .sweeps import run_sweep
-from .utils import atomic_write_text, progress
+from .utils import atomic_write_text, check_file_env, progress, recorded_env
 
 # what a step did (`step_outcome`), counted per episode
 STEP_OUTCOMES = ("placed", "picked_nothing", "refused", "moved_done", "off_goal")
@@ -356,6 +356,20 @@ def agent_factory(method: str, graph=None, model=None, seed: int = 0, ncs=None, 
     oracle's stand-in: `ORACLE_STATES`); it must be the one the graph was built on. MPC
     always reads slot states as the model's s (`slot_position` "attention": it rolls whole
     slots through the dynamics, which learned on them)."""
+    make = _make_agent(method, graph, model, seed, ncs, policy, mpc)
+    made_on = {"graph": recorded_env(graph.info) if graph is not None else None,
+               "dSLATE checkpoint": (getattr(model, "checkpoint_info", None) or {}).get("env"),
+               "policy": (getattr(policy, "info", None) or {}).get("env")}
+
+    def factory(env):
+        for what, made in made_on.items():       # a file made on one env is refused on another
+            check_file_env(f"{method}'s", what, made, env_name(env))
+        return make(env)
+    return factory
+
+
+def _make_agent(method: str, graph, model, seed: int, ncs, policy, mpc):
+    """`agent_factory`'s function env -> agent, its inputs checked."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     given = {"graph": graph, "model": model, "policy": policy}

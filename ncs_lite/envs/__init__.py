@@ -38,6 +38,12 @@ def make(name: str, **kwargs) -> gym.Env:
     return getattr(importlib.import_module(module), cls)(**kwargs)
 
 
+def env_name(env: gym.Env) -> str | None:
+    """The short name (`make`'s) of an environment instance; None for an env of no such name."""
+    cls = type(getattr(env, "unwrapped", env)).__name__
+    return next((name for name, (_, entry) in ENVIRONMENTS.items() if entry.endswith(f":{cls}")), None)
+
+
 # each env's object colours: (names, RGB (n, 3) in [0, 1]); robogym-rearrange's come from
 # envs.objects, which needs no MuJoCo, so figures can name them without making the env
 PALETTES = {"block-rearrange": (COLOR_NAMES, PALETTE), "robogym-rearrange": (COLOUR_NAMES, COLOURS),
