@@ -258,16 +258,8 @@ class DSlate(nn.Module):
             raise ValueError(f"actions must have shape {(B, T - 1, self.cfg.action_dim)}, "
                              f"got {tuple(actions.shape)}")
         x = videos.flatten(0, 1).float() / 255.0                       # (B*T, H, W, 3)
-        code_logits = self.dvae.logits(x)                              # (B*T, N, V)
-        soft, ids = self.dvae.sample(code_logits, tau)                 # (B*T, N, V), (B*T, N)
-        recon = self.dvae.decode(soft.to(code_logits.dtype))           # (B*T, H, W, 3)
-        err = (recon.float() - x).pow(2)                               # (B*T, H, W, 3)
-        w = self.cfg.dvae.foreground_weight
-        if w != 1.0:
-            err = err * (1.0 + (w - 1.0) * foreground(x))
-        mse = err.sum(dim=(1, 2, 3)).mean()
-        zero = mse.new_zeros(())
-        out = dict.fromkeys(LOSSES, zero)
+        mse, ids = self._dvae_loss(x, tau)
+        out = dict.fromkeys(LOSSES, mse.new_zeros(()))
         if dvae_only:
             return {**out, "loss": mse, "mse": mse}
 
@@ -281,15 +273,7 @@ class DSlate(nn.Module):
         with torch.set_grad_enabled(own and torch.is_grad_enabled()):
             slots, attn = self._inputs_to_slots(self._slot_inputs(x, emb), T)  # (B, T, K, D), (B, T, K, N')
         read = scale_grad(slots, self.cfg.decoder.slot_grad)           # what decoder/dynamics see
-        dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
-        logits = self.decoder(dec_in, read.flatten(0, 1))              # (B*T, N, V)
-        ce = F.cross_entropy(logits.flatten(0, 1).float(), ids.flatten(), reduction="sum") / (B * T)
-
-        pred = self.dynamics(read[:, :-1], actions.to(videos.device))   # (B, T-1, K, D)
-        emb_next = dec_in.reshape(B, T, *emb.shape[1:])[:, 1:].flatten(0, 1)
-        logits_dyn = self.decoder(emb_next, pred.flatten(0, 1))        # (B*(T-1), N, V)
-        ce_dyn = F.cross_entropy(logits_dyn.flatten(0, 1).float(), ids.reshape(B, T, -1)[:, 1:].flatten(),
-                                 reduction="sum") / (B * (T - 1))
+        ce, ce_dyn, pred = self._slate_losses(ids, emb, read, actions.to(videos.device))
         out.update(mse=mse, ce=ce, ce_dyn=ce_dyn)
         loss = mse + ce + ce_dyn
         if self.mixture is not None:
@@ -312,6 +296,37 @@ class DSlate(nn.Module):
             loss = loss + self.cfg.dynamics.latent_weight * out["latent"]
         out["loss"] = loss
         return out
+
+    def _dvae_loss(self, x: torch.Tensor, tau: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The dVAE's loss on frames x (M, H, W, 3) in [0, 1]: the squared error of its
+        reconstruction from relaxed one-hot tokens at temperature tau, summed per image
+        (foreground pixels weighted by `dvae.foreground_weight`) and averaged; with the
+        sampled token ids (M, N) the transformer learns to predict."""
+        code_logits = self.dvae.logits(x)                              # (M, N, V)
+        soft, ids = self.dvae.sample(code_logits, tau)                 # (M, N, V), (M, N)
+        recon = self.dvae.decode(soft.to(code_logits.dtype))           # (M, H, W, 3)
+        err = (recon.float() - x).pow(2)                               # (M, H, W, 3)
+        w = self.cfg.dvae.foreground_weight
+        if w != 1.0:
+            err = err * (1.0 + (w - 1.0) * foreground(x))
+        return err.sum(dim=(1, 2, 3)).mean(), ids
+
+    def _slate_losses(self, ids: torch.Tensor, emb: torch.Tensor, slots: torch.Tensor,
+                      actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SLATE's and the dynamics' cross-entropies: the decoder predicts each frame's tokens
+        ids (B*T, N) from its slots (B, T, K, D), and frame t+1's from the slots the dynamics
+        predict from frame t's and action t (B, T-1, A); per image, averaged. Also returns
+        the predicted slots (B, T-1, K, D)."""
+        B, T = slots.shape[:2]
+        dec_in = self._drop_tokens(ids, emb)                           # (B*T, N, d)
+        logits = self.decoder(dec_in, slots.flatten(0, 1))             # (B*T, N, V)
+        ce = F.cross_entropy(logits.flatten(0, 1).float(), ids.flatten(), reduction="sum") / (B * T)
+        pred = self.dynamics(slots[:, :-1], actions)                   # (B, T-1, K, D)
+        emb_next = dec_in.reshape(B, T, *emb.shape[1:])[:, 1:].flatten(0, 1)
+        logits_dyn = self.decoder(emb_next, pred.flatten(0, 1))        # (B*(T-1), N, V)
+        ce_dyn = F.cross_entropy(logits_dyn.flatten(0, 1).float(), ids.reshape(B, T, -1)[:, 1:].flatten(),
+                                 reduction="sum") / (B * (T - 1))
+        return ce, ce_dyn, pred
 
     @torch.no_grad()
     def _read_videos(self, videos: torch.Tensor):
