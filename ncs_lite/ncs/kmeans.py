@@ -414,20 +414,7 @@ def kmeans(x, k: int, metric: str = "sqeuclidean", *, seed: int = 0, max_iter: i
     _check_values(x, metric, "x", batch_size)
     row_stats = _all_row_stats(x, metric, batch_size)  # (N,), reused by every pass
 
-    if isinstance(init, str):
-        if init != "k-means++":
-            raise ValueError(f"init must be 'k-means++' or centroids of shape ({k}, {d}), "
-                             f"got {init!r}")
-        centroids = _kmeans_plusplus(x, row_stats, k, metric, _generator(seed, x.device),
-                                     batch_size)
-    else:
-        centroids = _as_matrix(init, "init").to(device=x.device, dtype=x.dtype)
-        if tuple(centroids.shape) != (k, d):
-            raise ValueError(f"init must have shape (k, D) = ({k}, {d}), "
-                             f"got {tuple(centroids.shape)}")
-        _check_values(centroids, metric, "init", batch_size)
-        centroids = centroids.clone()
-
+    centroids = _initial_centroids(x, row_stats, init, k, metric, seed, batch_size)
     labels, dists, sums, counts = _pass(x, row_stats, centroids, metric, batch_size)
     inertia = float(dists.sum(dtype=torch.float64))
     n_iter, converged = 0, False
@@ -448,14 +435,38 @@ def kmeans(x, k: int, metric: str = "sqeuclidean", *, seed: int = 0, max_iter: i
     if bar is not None:
         bar.close()
     if bool((counts == 0).any()):
-        empty, distinct = int((counts == 0).sum()), int(torch.unique(x, dim=0).shape[0])
-        why = (f"the data hold only {distinct} distinct points" if distinct < k
-               else "the last update emptied a cluster (raise max_iter)")
-        # one plain line a reader can act on, not a warning with a source path; the warning
-        # (EmptyClusterWarning, a RuntimeWarning) is still raised for code that catches it
-        print(f"k-means: {empty} of k={k} clusters ended empty, because {why}; "
-              "no point of the data is assigned to them")
-        warnings.warn(EmptyClusterWarning(
-            f"k-means ended with {empty} empty cluster(s) of k={k}: {why}"), stacklevel=2)
+        _report_empty(x, counts, k)
     return KMeansResult(centroids=centroids, labels=labels, inertia=inertia, n_iter=n_iter,
                         converged=converged)
+
+
+def _initial_centroids(x: torch.Tensor, row_stats, init, k: int, metric: str, seed: int,
+                       batch_size: int) -> torch.Tensor:
+    """`kmeans`' start: a k-means++ draw (`init` "k-means++") or the given (k, D) centroids,
+    checked."""
+    d = x.shape[1]
+    if isinstance(init, str):
+        if init != "k-means++":
+            raise ValueError(f"init must be 'k-means++' or centroids of shape ({k}, {d}), "
+                             f"got {init!r}")
+        return _kmeans_plusplus(x, row_stats, k, metric, _generator(seed, x.device), batch_size)
+    centroids = _as_matrix(init, "init").to(device=x.device, dtype=x.dtype)
+    if tuple(centroids.shape) != (k, d):
+        raise ValueError(f"init must have shape (k, D) = ({k}, {d}), "
+                         f"got {tuple(centroids.shape)}")
+    _check_values(centroids, metric, "init", batch_size)
+    return centroids.clone()
+
+
+def _report_empty(x: torch.Tensor, counts: torch.Tensor, k: int) -> None:
+    """Say, in one plain line and as an EmptyClusterWarning, how many clusters `kmeans`
+    left empty and why."""
+    empty, distinct = int((counts == 0).sum()), int(torch.unique(x, dim=0).shape[0])
+    why = (f"the data hold only {distinct} distinct points" if distinct < k
+           else "the last update emptied a cluster (raise max_iter)")
+    # one plain line a reader can act on, not a warning with a source path; the warning
+    # (EmptyClusterWarning, a RuntimeWarning) is still raised for code that catches it
+    print(f"k-means: {empty} of k={k} clusters ended empty, because {why}; "
+          "no point of the data is assigned to them")
+    warnings.warn(EmptyClusterWarning(
+        f"k-means ended with {empty} empty cluster(s) of k={k}: {why}"), stacklevel=3)
