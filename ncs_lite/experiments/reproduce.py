@@ -468,18 +468,8 @@ def env_table(env: str, episodes: int = 100, objects=None, images: int = 200, ch
     for goal in goals:
         for k in objects:
             for label, _, _ in methods:
-                rows = next(cells)
-                s = summarize(rows)[0]
                 key = label.replace("-", "_") + ("" if goal == "complete" else "_partial")
-                row[f"{key}_{k}"] = s["success"]
-                row[f"{key}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
-                _constraints(row, f"{key}_{k}", s)
-                for share in ("random", "noop", "placed", "picked_nothing"):
-                    row[f"{key}_{share}_fraction_{k}"] = round(s[f"{share}_fraction"], 3)
-                if dependent and "rule_direct" in rows[0]:
-                    decisions = sum(r["steps"] for r in rows)
-                    for rule in RULES:
-                        row[f"{key}_rule_{rule}_{k}"] = round(sum(r[f"rule_{rule}"] for r in rows) / decisions, 3)
+                row.update(_cell_columns(next(cells), key, k))
             print(json.dumps({k2: v for k2, v in row.items() if k2.endswith(f"_{k}")}), flush=True)
     meta = {"env": env, "episodes": episodes, "objects": list(objects), "goals": list(goals), "images": images,
             "ncs": to_dict(ncs),
@@ -487,6 +477,22 @@ def env_table(env: str, episodes: int = 100, objects=None, images: int = 200, ch
             **{f"{name_}_sha256": sha256_file(p) for name_, p in paths.items()}}
     write_table(name, [row], meta, out_dir, allow_dirty)
     return {"rows": [row]}
+
+
+def _cell_columns(rows: list[dict], key: str, k: int) -> dict:
+    """One method's columns of `env_table` at `k` objects from its episode rows: success with
+    its interval, constraints satisfied, the shares of its steps and, where its rows count
+    the dependency rules, the share of decisions each rule made."""
+    s = summarize(rows)[0]
+    out = {f"{key}_{k}": s["success"], f"{key}_{k}_ci": f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"}
+    _constraints(out, f"{key}_{k}", s)
+    for share in ("random", "noop", "placed", "picked_nothing"):
+        out[f"{key}_{share}_fraction_{k}"] = round(s[f"{share}_fraction"], 3)
+    if "rule_direct" in rows[0]:
+        decisions = sum(r["steps"] for r in rows)
+        for rule in RULES:
+            out[f"{key}_rule_{rule}_{k}"] = round(sum(r[f"rule_{rule}"] for r in rows) / decisions, 3)
+    return out
 
 
 def robogym_table(*args, **kwargs) -> dict:
