@@ -54,23 +54,17 @@ reproduce: $(STAMP)
 	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
 	    $$(basename $$nb .ipynb) $$(date +%s.%N) $$start $(PRESET) || exit 1; \
 	done
-	# notebooks 04-07 once more on robogym-rearrange: same parameters but `env`; executed
-	# copies <name>_robogym.ipynb, figures in figures/<name>/robogym-rearrange/, times as <name>_robogym
-	for nb in $(ENV_NOTEBOOKS); do \
-	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=robogym-rearrange)"; start=$$(date +%s.%N); \
-	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
-	    -p env robogym-rearrange $$nb $(BUILD)/notebooks/$${name}_robogym.ipynb || exit 1; \
-	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
-	    $${name}_robogym $$(date +%s.%N) $$start $(PRESET) || exit 1; \
-	done
-	# ... and on block-stacking: executed copies <name>_stacking.ipynb, figures in
-	# figures/<name>/block-stacking/, times as <name>_stacking (the suffixes: utils.NOTEBOOK_ENV_SUFFIX)
-	for nb in $(ENV_NOTEBOOKS); do \
-	  name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=block-stacking)"; start=$$(date +%s.%N); \
-	  OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
-	    -p env block-stacking $$nb $(BUILD)/notebooks/$${name}_stacking.ipynb || exit 1; \
-	  $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
-	    $${name}_stacking $$(date +%s.%N) $$start $(PRESET) || exit 1; \
+	# notebooks 04-07 once more on each other env: same parameters but `env`; executed copies
+	# <name>_<suffix>.ipynb, figures in figures/<name>/<env>/, times as <name>_<suffix> (the
+	# suffixes: utils.NOTEBOOK_ENV_SUFFIX)
+	for pair in robogym-rearrange:robogym block-stacking:stacking; do env=$${pair%%:*}; suffix=$${pair##*:}; \
+	  for nb in $(ENV_NOTEBOOKS); do \
+	    name=$$(basename $$nb .ipynb); echo "== $$nb (preset=$(PRESET), env=$$env)"; start=$$(date +%s.%N); \
+	    OMP_NUM_THREADS=$(THREADS) NCS_LITE_ALLOW_DIRTY=$(ALLOW_DIRTY) $(PY) -m papermill --kernel python3 --cwd notebooks -p preset $(PRESET) \
+	      -p env $$env $$nb $(BUILD)/notebooks/$${name}_$$suffix.ipynb || exit 1; \
+	    $(PY) -c "import sys; from ncs_lite.experiments.reproduce import record_notebook_time as r; r(sys.argv[1], float(sys.argv[2]) - float(sys.argv[3]), sys.argv[4])" \
+	      $${name}_$$suffix $$(date +%s.%N) $$start $(PRESET) || exit 1; \
+	  done; \
 	done
 	# the whole run's time, when it ran every notebook (not NOTEBOOKS=... from the command line)
 	if [ "$(origin NOTEBOOKS)$(origin ENV_NOTEBOOKS)" = "filefile" ]; then \

@@ -412,9 +412,11 @@ def factorization_scores(model, buffer: dict, restarts: int = 1, seed: int = 0,
     out.update({"episodes": int(E), "objects_matched": int(len(f["episode"])),
                 "transitions": int((transitions["moved_slot"] >= 0).sum()),
                 "restarts": int(restarts), "slots": int(f["slots"].shape[2])})
+    frames = buffer["frames"]
+    images = frames.reshape(-1, *frames.shape[2:]).astype(np.float64) / 255.0     # (E*T, H, W, 3)
     if model.can_render:
-        out.update(_render_scores(model, buffer["frames"], true, f["slots"], transitions))
-    out.update(_dvae_floor_scores(model, buffer["frames"], true, f["all_colours"], f["colour_names"]))
+        out.update(_render_scores(model, frames, images, true, f["slots"], transitions))
+    out.update(_dvae_floor_scores(model, frames, images, true, f["all_colours"], f["colour_names"]))
     return out
 
 
@@ -485,12 +487,11 @@ def _dynamics_scores(tr: dict, f: dict, train, type_dim: int) -> dict:
             "no_change_position_r2": _r2(read_pos(cur_s), next_pos)}
 
 
-def _render_scores(model, frames, true, slots, tr: dict) -> dict:
+def _render_scores(model, frames, images, true, slots, tr: dict) -> dict:
     """Pixel errors of the images drawn from the slots alone (`DSlate.render`): on the
     objects' pixels against the empty floor's, and the frame drawn from the predicted slots
     on the moved object's pixels against the current frame (no change)."""
     E, T, k = true.shape[:3]
-    images = frames.reshape(E * T, *frames.shape[2:]).astype(np.float64) / 255.0
     drawn = np.concatenate([model.render(slots.flatten(0, 1)[i:i + 200].to(model.device)).cpu().numpy()
                             for i in range(0, E * T, 200)]).astype(np.float64)
     fg = true.reshape(E * T, k, *true.shape[3:]).any(1)                # (E*T, H, W)
@@ -507,11 +508,10 @@ def _render_scores(model, frames, true, slots, tr: dict) -> dict:
             "no_change_error": float(np.abs(cur_img - next_img).mean(-1)[region].mean())}
 
 
-def _dvae_floor_scores(model, frames, true, colour, colour_names) -> dict:
+def _dvae_floor_scores(model, frames, images, true, colour, colour_names) -> dict:
     """Per colour, the share of its pixels the dVAE round trip paints nearer the floor than
     the colour, and the largest share."""
     E, T, k = true.shape[:3]
-    images = frames.reshape(E * T, *frames.shape[2:]).astype(np.float64) / 255.0
     recon = np.concatenate([model.reconstruct(frames.reshape(E * T, *frames.shape[2:])[i:i + 200]).cpu().numpy()
                             for i in range(0, E * T, 200)]).astype(np.float64)
     lost = _floor_pixels(recon, images, true.reshape(E * T, k, *true.shape[3:]))   # (E*T, k)
