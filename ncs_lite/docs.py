@@ -126,7 +126,8 @@ COLUMNS = [
     (r"oracle_graph_edges", "graph edges, the oracle's graph", "int", None),
     (r"coverage", "isolate coverage, {state}", "num2", "high"),
     (r"coverage_slot", "isolate coverage, slot states", "num2", "high"),
-    (r"heldout_error", "held-out reconstruction error (picks the shipped seed)", "sig3", "low"),
+    (r"heldout_error", "held-out reconstruction error, 4 objects, one start", "sig3", "low"),
+    (r"heldout_error_(?P<k>\d+)_r(?P<r>\d+)", "held-out reconstruction error, {k} objects, {starts}", "sig3", "low"),
     (r"train_minutes", "training minutes", "min", "low"),
 ]
 _COLUMNS = [(re.compile(p + r"\Z"), label, kind, better) for p, label, kind, better in COLUMNS]

@@ -476,5 +476,8 @@ def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipp
     for k in (4, 5, 6, 7):
         assert {f"ncs_{k}", f"ncs_oracle_{k}", f"random_{k}", f"placed_fraction_{k}"} <= set(row)
     assert "ncs_slot_4" not in row and "heldout_error" in row and out["shipped_seed"] == 0
+    # the shipping rule reads the error at the largest count, each frame's best of 8 starts
+    assert row["heldout_error_7_r8"] > 0
     saved = json.loads((tmp_path / "tables" / "seeds_robogym_ci.json").read_text())
     assert saved["env"] == "robogym-rearrange" and saved["clusters"] == 8 and saved["shipped_seed"] == 0
+    assert "heldout_error_7_r8" in saved["shipped_rule"]
