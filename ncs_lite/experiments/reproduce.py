@@ -89,6 +89,13 @@ def _stage(path: Path, key: dict, compute):
 
 # ---------------------------------------------------------------------- seeds
 SHIPPING_RESTARTS = 8   # starts per held-out frame of the shipping rule's error (the best is kept)
+
+
+def _shipping_column(most: int) -> str:
+    """The seeds table's column the shipping rule reads: the held-out error at `most` objects."""
+    return f"heldout_error_{most}_r{SHIPPING_RESTARTS}"
+
+
 # factorization_scores' measures that the seeds table reports
 SPLIT_METRICS = ("type_invariance", "identity_from_z", "position_r2_from_s", "position_r2_from_z",
                  "own_slot_share", "position_r2_own_slots",
@@ -159,7 +166,7 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "shared_", "train_minutes",
                                                    "split_", "heldout_")) and not c.endswith("_ci")]
     summary = {m: mean_sd([r[m] for r in rows]) for m in metrics}
-    rule = f"heldout_error_{max(objects)}_r{SHIPPING_RESTARTS}"
+    rule = _shipping_column(max(objects))
     shipped = min(rows, key=lambda r: r[rule])["seed"]
     meta = {"env": env, "preset": preset, "overrides": list(overrides), "seeds": list(seeds),
             "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
@@ -201,7 +208,7 @@ def _segmentation_columns(folder: Path, model, ckpt_hash: str, env: str, images:
     heldout = cached_buffer(100, env=env, num_objects=4, seed=HELDOUT_SEED)
     row = {"heldout_error": round(_stage(folder / "heldout-error.json", {"checkpoint": ckpt_hash, "images": images},
                                          lambda: heldout_reconstruction_error(model, env, images)), 4)}
-    rule = f"heldout_error_{most}_r{SHIPPING_RESTARTS}"
+    rule = _shipping_column(most)
     row[rule] = round(_stage(folder / f"heldout-error-k{most}-r{SHIPPING_RESTARTS}.json",
                              {"checkpoint": ckpt_hash, "images": images},
                              lambda: heldout_reconstruction_error(model, env, images, most, SHIPPING_RESTARTS)), 4)
