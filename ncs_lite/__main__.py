@@ -22,8 +22,8 @@ from .data import collect, load_manifest, manifest_hash
 from .evaluation import (NEED_NAMES, NEEDS, TaskSet, agent_factory, check_graph_actions, check_graph_reading, evaluate,
                          summarize, write_csv)
 from .inference import load_dslate, read_checkpoint, shipped_asset
-from .ncs.graph import BUILD_FIELDS, TransitionGraph, graph_from_buffer
-from .ncs.perception import buffer_transitions, graph_perception, slot_read
+from .ncs.graph import BUILD_FIELDS, TransitionGraph, buffer_perception, graph_from_buffer
+from .ncs.perception import buffer_transitions, slot_read
 from .training import EXTENDABLE, train
 from .utils import check_file_env, check_out_file, provenance, recorded_env, relative_to_repo, sha256_file
 
@@ -181,7 +181,7 @@ def _graph_nf(args) -> None:
     cfg = ncs_config(args.overrides, clusters=bind.num_nodes if bind else args.clusters,
                      state=args.state or (bind.state if bind else None))
     made = provenance(args.out, args.allow_dirty)
-    perception = graph_perception(cfg, model)                    # as `graph` reads the buffer
+    perception = buffer_perception(cfg, model, args.data)        # as `graph` reads the buffer
     transitions = buffer_transitions(perception, args.data)      # cached, shared with `graph`
     try:
         graph = set_graph_from_transitions(transitions, bind, clusters=cfg.clusters, state=cfg.state, seed=cfg.seed)

@@ -33,7 +33,7 @@ MixtureAppearance = Literal["slot", "type"]       # MixtureConfig.appearance
 MixtureError = Literal["mixed", "per_slot"]       # how DSlate.mixture_error scores the paint
 ColorAugment = Literal["none", "channels", "channels_gamma"]   # TrainConfig.color_augment (data/augment.py)
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
-SlotPosition = Literal["attention", "assigned"]   # NCSConfig.slot_position (ncs/perception.py)
+SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
 AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
 EdgeAction = Literal["most_common", "nearest", "compose", "readout"]   # NCSConfig.edge_action (ncs/graph.py)
 MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
@@ -403,9 +403,10 @@ class NCSConfig:
     #                             mask (block-rearrange), "slot" = the state half s of the slot
     #                             (robogym-rearrange); picks the isolate, cluster and bind metrics
     slot_position: SlotPosition | None = None  # with slot states, where a slot is: "attention" (the model's
-    #                             s) or "assigned" (the cells it wins, one slot per object plus
-    #                             the floor's); None = the model's env's (ncs.perception.
-    #                             SLOT_POSITION_BY_ENV: "assigned" block-rearrange)
+    #                             s), "assigned" (the cells it wins, one slot per object plus
+    #                             the floor's) or "base" (the lowest row and mean column of the
+    #                             pixels it wins, as many slots); None = the model's env's
+    #                             (SLOT_POSITION_BY_ENV: "assigned" block-rearrange, "base" block-stacking)
     align: AlignRule = "near"   # which pairs of align's matching are constraints (ncs.policy.align):
     #                             "near" = those whose types are closer than a quarter of the
     #                             scene's median type distance (the kit's; a partial goal's
@@ -571,7 +572,7 @@ CLUSTERS_BY_ENV = {"block-rearrange": 30, "robogym-rearrange": 45, "block-stacki
 # docs/HISTORY.md, "block-stacking: the camera, the starts and the entity state")
 STATE_BY_ENV = {"block-rearrange": "mask", "robogym-rearrange": "slot", "block-stacking": "slot"}
 EDGE_ACTION_BY_ENV = {"block-rearrange": "most_common", "robogym-rearrange": "readout",
-                      "block-stacking": "most_common"}
+                      "block-stacking": "nearest"}
 # envs whose objects depend on each other (NCSConfig.dependencies; ncs.dependencies)
 DEPENDENCIES_BY_ENV = {"block-stacking": True}
 # slot-attention restarts: RESTARTS per video of the buffer when a graph is built
@@ -579,9 +580,11 @@ DEPENDENCIES_BY_ENV = {"block-stacking": True}
 RESTARTS = 8
 RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8, "block-stacking": 32}
 # where a slot state's position comes from (NCSConfig.slot_position): the slot's soft attention
-# ("attention") or the cells it wins ("assigned"; measured on block-rearrange only)
+# ("attention"), the cells it wins ("assigned"; measured on block-rearrange only) or the base of
+# the pixels it wins ("base": block-stacking, where a cube's level must be told from the row
+# behind it and the visible part of a covered cube moves; docs/recipe.md)
 SLOT_POSITION = "attention"
-SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned"}
+SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned", "block-stacking": "base"}
 # the task sets of an env's comparison (`reproduce baselines`) where they differ from
 # comparison.run_comparison's defaults (4-7 objects, complete and partial goals): block-stacking's
 # towers from 3 to 6 cubes, complete goals

@@ -21,9 +21,8 @@ from ..config import (CLUSTERS_BY_ENV, EDGE_ACTION_BY_ENV, GRAPH_EPISODES_BY_ENV
 from ..data import cached_buffer
 from ..evaluation import TaskSet, evaluate_methods
 from ..inference import load_dslate, shipped_asset
-from ..ncs.graph import (BUILD_FIELDS, TransitionGraph,
-                        graph_from_buffer)
-from ..ncs.perception import buffer_transitions, graph_perception, scene_slots
+from ..ncs.graph import BUILD_FIELDS, TransitionGraph, buffer_perception, graph_from_buffer
+from ..ncs.perception import buffer_transitions
 from ..training import obtain_dslate
 
 __all__ = ["COMPARED", "PAPER_NCS", "comparison_assets", "run_comparison"]
@@ -105,11 +104,10 @@ def comparison_assets(preset: str = "reduced", seed: int = 0, env: str = "block-
     data = cached_buffer(graph_episodes_of(preset, env), env=env, seed=seed)
     out = {"model": model, "paths": {"model": str(model_path), "graph_buffer": str(data)}, "preset": preset,
            "env": env, "ncs": ncs}
-    # the 4-object buffer read with the slots the agents read 4 objects with (objects + 1)
-    slots = scene_slots(model, 4, ncs)
-    for name, reader, read_slots in (("", model, slots), ("oracle_", None, None)):
-        out[f"{name}graph"] = graph = graph_from_buffer(ncs, reader, data, num_slots=read_slots)
-        transitions = buffer_transitions(graph_perception(ncs, reader, num_slots=read_slots), data)   # cached
+    # the 4-object buffer read with the slots the agents read 4 objects with (`buffer_perception`)
+    for name, reader in (("", model), ("oracle_", None)):
+        out[f"{name}graph"] = graph = graph_from_buffer(ncs, reader, data)
+        transitions = buffer_transitions(buffer_perception(ncs, reader, data), data)   # cached
         out[f"nf_{name}graph"] = set_graph_from_transitions(transitions[:3], graph, state=ncs.state)
         out[f"nf_{name}graph"].info["env"] = env
     for method in ("bc", "iql"):

@@ -235,8 +235,35 @@ class DSlate(nn.Module):
         if not self.cfg.slots.position_state:
             raise ValueError("assigned_states reads the position features of slots.position_state, "
                              "which this model does not have")
-        won = F.one_hot(attention.argmax(-2), attention.shape[-2]).movedim(-1, -2).to(attention.dtype)
-        return self._with_position(states, won)
+        return self._with_position(states, self._won_cells(attention))
+
+    def base_states(self, states: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+        """states (..., K, Ds) with their position features replaced by where each slot's
+        object stands in the image: the lowest row and the mean column of the pixels it wins
+        in its mask (`upsample_masks`: the masks NCS acts on), then two zeros where the
+        spread was (a slot that wins no pixel reads (0, 0, 0, 0), the prior's centre). A
+        camera that looks down at a slant draws an object's base where it touches what it
+        stands on, and that edge stays put when another object covers the object's top,
+        which moves the centroid of the visible part: block-stacking's places (cell, level)
+        are told apart by it (`ncs.slot_position` "base"; docs/recipe.md)."""
+        if not self.cfg.slots.position_state:
+            raise ValueError("base_states reads the position features of slots.position_state, "
+                             "which this model does not have")
+        lead, (K, N) = attention.shape[:-2], attention.shape[-2:]
+        masks = self.upsample_masks(attention.reshape(-1, K, N)).flatten(-2)      # (B', K, H*W)
+        won = self._won_cells(masks).reshape(*lead, K, -1)
+        coords = coordinate_grid(self.cfg.image_size).to(won)             # (H*W, 2) (row, col)
+        cells = won.sum(-1)                                                # (..., K)
+        bottom = torch.where(won > 0, coords[:, 0], torch.full_like(won, -2.0)).amax(-1)
+        bottom = torch.where(cells > 0, bottom, torch.zeros_like(bottom))
+        column = (won @ coords[:, 1]) / cells.clamp(min=1.0)
+        where = torch.stack([bottom, column, torch.zeros_like(bottom), torch.zeros_like(bottom)], -1)
+        return torch.cat([states[..., :states.shape[-1] - POSITION_FEATURES], where.to(states.dtype)], -1)
+
+    @staticmethod
+    def _won_cells(attention: torch.Tensor) -> torch.Tensor:
+        """(..., K, N') one-hot: 1 where the slot's attention is the largest of the K."""
+        return F.one_hot(attention.argmax(-2), attention.shape[-2]).movedim(-1, -2).to(attention.dtype)
 
     # ------------------------------------------------------------------ training
     def forward(self, videos: torch.Tensor, actions: torch.Tensor, tau: float,

@@ -59,7 +59,7 @@ from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
 from ..utils import relative_to_repo
 from .dependencies import graph_reach, on_graph, support_relation
 from .kmeans import KMeansResult, assign, kmeans, pairwise_distances
-from .perception import buffer_transitions, graph_perception, slot_read
+from .perception import buffer_transitions, graph_perception, scene_slots, slot_read
 
 # Table 3 (state representation -> metrics) and Table 4 (nodes per environment).
 METRICS_BY_STATE = {
@@ -506,6 +506,15 @@ def build_graph(states_t: torch.Tensor, states_t1: torch.Tensor, actions: np.nda
     return graph
 
 
+def buffer_perception(ncs, model, data, num_slots: int | None = None):
+    """How a graph reads the frames of the buffer at `data` (`graph_perception`): with
+    `num_slots` slots, or when None those an agent reads a scene of the buffer's object count
+    with (`scene_slots`), so the graph's states and the agent's are read alike."""
+    if model is not None and num_slots is None:
+        num_slots = scene_slots(model, load_manifest(data)["env"]["num_objects"], ncs)
+    return graph_perception(ncs, model, num_slots=num_slots)
+
+
 def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
                       episodes: int | None = None) -> TransitionGraph:
     """The transition graph of the buffer at `data` (a directory, `ncs_lite.data.collect`) as
@@ -513,8 +522,9 @@ def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
     to a graph, used by `python -m ncs_lite graph`, the tables and notebooks 05-06.
 
     1. perception (`graph_perception`): `model`'s entities (`ncs.iterations`,
-       `ncs.graph_restarts`, `ncs.state`, `ncs.slot_position`, `num_slots` slots; None: the
-       model's K), or ground truth with `model` None;
+       `ncs.graph_restarts`, `ncs.state`, `ncs.slot_position`, `num_slots` slots; None: those
+       an agent reads a scene of the buffer's object count with, `scene_slots`), or ground
+       truth with `model` None;
     2. the buffer's transitions as it reads them (`buffer_transitions`, cached), the first
        `episodes` episodes of them (None: all);
     3. `build_graph` with `ncs.clusters`, `ncs.state`, `ncs.seed`, `ncs.edge_action` and
@@ -530,7 +540,7 @@ def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
     episodes = total if episodes is None else episodes
     if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= total:
         raise ValueError(f"episodes must be an integer in [1, {total}] (the graph buffer's), got {episodes!r}")
-    perception = graph_perception(ncs, model, num_slots=num_slots)
+    perception = buffer_perception(ncs, model, data, num_slots)
     states_t, states_t1, actions, moved = buffer_transitions(perception, data)
     keep = episodes * (len(actions) // total)             # transitions in episode order (M = E (T - 1))
     graph = build_graph(states_t[:keep], states_t1[:keep], actions[:keep], clusters=ncs.clusters, state=ncs.state,
@@ -538,9 +548,9 @@ def graph_from_buffer(ncs, model, data, *, num_slots: int | None = None,
                         dependencies=ncs.dependencies)
     graph.info.update(env=env, data=relative_to_repo(data), manifest_sha256=manifest_hash(data), episodes=episodes,
                       ncs=asdict(ncs), oracle=model is None, perception_state=perception.state,
-                      **slot_read(perception), **({} if num_slots is None else {"read_slots": num_slots}))
+                      **slot_read(perception), **({} if model is None else {"read_slots": perception.num_slots}))
     return graph
 
 
-__all__ = ["BUILD_FIELDS", "CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
+__all__ = ["BUILD_FIELDS", "buffer_perception", "CLUSTERS_BY_ENV", "EDGE_ACTION_BY_ENV", "EDGE_ACTIONS", "readout_features", "STATE_BY_ENV", "METRICS_BY_STATE", "TransitionGraph", "bind", "build_graph", "cluster",
            "graph_from_buffer", "isolate", "isolate_distance"]

@@ -27,6 +27,8 @@ from ..data import load_buffer
 from ..workers import map_jobs
 
 STATE_GRID = 16
+# slot positions read from the cells each slot wins (DSlate.assigned_states, DSlate.base_states)
+WON_CELL_READS = ("assigned", "base")
 
 
 def acting_restarts(ncs, model) -> int:
@@ -55,7 +57,7 @@ def scene_slots(model, num_objects: int, ncs=None) -> int:
     if ncs.slots is not None:
         return ncs.slots
     slots = num_objects + ncs.extra_slots
-    if ncs.state == "slot" and acting_slot_position(ncs, model) == "assigned":
+    if ncs.state == "slot" and acting_slot_position(ncs, model) in WON_CELL_READS:
         return slots
     trained = getattr(getattr(model, "cfg", None), "slots", None)     # stand-in models in tests declare no K
     return max(trained.num_slots if trained is not None else 0, slots)
@@ -192,8 +194,8 @@ class DSlatePerception:
         if slot_position not in SLOT_POSITIONS:
             raise ValueError(f"slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))}, "
                              f"got {slot_position!r}")
-        if slot_position == "assigned" and state == "slot" and not model.cfg.slots.position_state:
-            raise ValueError("slot_position 'assigned' reads slots.position_state's features; "
+        if slot_position in WON_CELL_READS and state == "slot" and not model.cfg.slots.position_state:
+            raise ValueError(f"slot_position {slot_position!r} reads slots.position_state's features; "
                              "this model has none (use 'attention')")
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
         self.restarts, self.slot_position = restarts, slot_position
@@ -290,7 +292,10 @@ def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
 
 def _slot_states(model, r, slot_position: str) -> torch.Tensor:
     """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says."""
-    states = r.states if slot_position == "attention" else model.assigned_states(r.states, r.attention)
+    if slot_position == "attention":
+        return r.states.cpu().float()
+    read = model.assigned_states if slot_position == "assigned" else model.base_states
+    states = read(r.states, r.attention)
     return states.cpu().float()
 
 

@@ -210,15 +210,8 @@ class NCSAgent:
             return self._random("every constraint looks satisfied")
         pick = choice.selected
         if from_states:
-            before, after = cur.states[c_idx[pick]], goal.states[g_idx[pick]]
-            key = (int(g_idx[pick]), choice.src, choice.dst)
-            # the same pair on the same edge again: the last try missed (a move that worked
-            # leaves another node behind, or lands within the goal's node short of the goal)
-            rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
-            self._retry = (key, rank)
-            self.last["rank"] = rank
-            action = self.graph.action(choice.src, choice.dst, before, after, rank, basis=self._basis,
-                                       mode=self.edge_action)
+            action = self._action_from_states((int(g_idx[pick]), choice.src, choice.dst),
+                                              cur.states[c_idx[pick]], goal.states[g_idx[pick]])
         else:
             action = self.graph.action(choice.src, choice.dst)
         if action is None:
@@ -243,9 +236,27 @@ class NCSAgent:
         if d.rule is None:
             return self._random("every constraint looks satisfied, or no move is possible")
         self.rules[d.rule] += 1
-        action = self.graph.action(d.src, d.dst)
+        if self.edge_action in EXAMPLE_ACTIONS:
+            # a move onto the pair's goal node aims at the goal entity's state, any other
+            # move (a path's hop, a clear) at the node it goes to
+            onto_goal = d.pair is not None and d.dst == goal_nodes[g_idx[d.pair]]
+            after = goal.states[g_idx[d.pair]] if onto_goal else self.graph.centroids[d.dst]
+            action = self._action_from_states((d.pair, d.src, d.dst), cur.states[d.entity], after)
+        else:
+            action = self.graph.action(d.src, d.dst)
         self.last["action"] = action
         return action, False
+
+    def _action_from_states(self, key: tuple, before, after):
+        """The action read from the states on the edge of `key` (..., src, dst) (`edge_action`
+        "nearest", "compose" or "readout"): its rank-th candidate, where the rank counts how
+        many times in a row this decision was taken. The same decision again means the last
+        try missed (a move that worked leaves another node behind, or lands within the goal's
+        node short of the goal), so the next candidate is tried."""
+        rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
+        self._retry = (key, rank)
+        self.last["rank"] = rank
+        return self.graph.action(key[-2], key[-1], before, after, rank, basis=self._basis, mode=self.edge_action)
 
     def _random(self, why: str):
         action = self.action_space.sample()

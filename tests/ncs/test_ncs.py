@@ -713,7 +713,7 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     assigned = NCSConfig(clusters=4, state="slot", iterations=2, graph_restarts=1, slot_position="assigned")
     assert graph_from_buffer(assigned, model, tmp_path / "buf").info["slot_position"] == "assigned"
     assert "slot_position" not in graph_from_buffer(assigned, None, tmp_path / "buf").info
-    with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned' or None "
+    with pytest.raises(ValueError, match=r"ncs\.slot_position must be one of 'attention', 'assigned', 'base' or None "
                                          r"\(the env's\), got 'hard'"):
         ncs_config(["ncs.slot_position=hard"])
     plain = DSlate(apply_overrides(get_preset("ci"), ["slots.position_state=false"]))   # no position features
@@ -721,6 +721,45 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     assert DSlatePerception(plain, state="slot").slot_position == "attention"
     with pytest.raises(ValueError, match="this model has none"):
         DSlatePerception(plain, state="slot", slot_position="assigned")
+
+
+def test_base_slot_states_read_where_each_slot_stands(tmp_path):
+    """`slot_position` "base": the lowest row and the mean column of the pixels a slot wins in
+    its upsampled mask, then zeros; a slot that wins none reads zeros. The base does not move
+    when the top of an object's region is taken by another slot (a cube put on it), where
+    the centroid does. Block-stacking models read this way, graphs with as many slots as
+    their agents (one per object plus the floor's)."""
+    from ncs_lite.config import NCSConfig, get_preset
+    from ncs_lite.evaluation import learned_perception
+    from ncs_lite.models import DSlate
+
+    model = DSlate(get_preset("ci")).eval()
+    g, S = model.cfg.mask_grid, model.cfg.image_size
+    attn = torch.zeros(1, 3, g, g)
+    attn[0, 0] = 1.0                                     # slot 0: the floor, everywhere else
+    attn[0, 0, 8:16, 4:12] = 0.0
+    attn[0, 1, 8:16, 4:12] = 1.0                         # slot 1: a cube, rows 8-15, columns 4-11
+    attn = attn.flatten(2)
+    states = torch.randn(1, 3, model.cfg.slots.state_dim)
+    got = model.base_states(states, attn)
+    won = model.upsample_masks(attn)[0].argmax(0) == 1                  # (S, S) the cube's pixels
+    rows, cols = torch.nonzero(won, as_tuple=True)
+    to_unit = lambda i: (i.float() + 0.5) / S * 2 - 1                   # noqa: E731 (pixel centre in [-1, 1])
+    torch.testing.assert_close(got[0, 1, -4:], torch.stack([to_unit(rows.max()), to_unit(cols).mean(),
+                                                             torch.tensor(0.0), torch.tensor(0.0)]))
+    torch.testing.assert_close(got[0, 2, -4:], torch.zeros(4))          # slot 2 wins no pixel
+    torch.testing.assert_close(got[..., :-4], states[..., :-4])         # the rest of s is kept
+    covered = attn.reshape(1, 3, g, g).clone()
+    covered[0, 2, 8:11, 4:12], covered[0, 1, 8:11, 4:12] = 1.0, 0.0    # a cube on top takes its upper rows
+    covered = covered.flatten(2)
+    torch.testing.assert_close(model.base_states(states, covered)[0, 1, :-3], got[0, 1, :-3])   # same base
+    assert not torch.allclose(model.assigned_states(states, covered)[0, 1, -4], model.assigned_states(states, attn)[0, 1, -4])
+    model.checkpoint_info = {"env": "block-stacking"}
+    read = learned_perception(model, 1, NCSConfig(state="slot"))
+    assert (read.slot_position, read.num_slots) == ("base", 2)
+    collect(tmp_path / "buf", episodes=2, seed=0, env="block-stacking", num_objects=1)
+    graph = graph_from_buffer(NCSConfig(clusters=2, state="slot", iterations=2, graph_restarts=1), model, tmp_path / "buf")
+    assert (graph.info["slot_position"], graph.info["read_slots"], graph.edge_action) == ("base", 2, "nearest")
 
 
 def test_step_trace_classifies_every_step_and_names_the_selected_object(oracle_graph):
