@@ -2,7 +2,9 @@
 
 A task set is fixed by (env, num_objects, goal, horizon multiplier, action noise, seed,
 episodes): task i is `env.reset(seed=task_seed(seed, i))`, so every method faces the same
-tasks. Each episode gives one tidy row; `summarize` turns rows into two success measures,
+tasks, and the agent is reset with that seed too (`agent.reset(obs, info, seed=...)`: it draws
+from a seed of the task's and its own, `utils.task_seed_of`), so a task's row does not depend
+on the tasks run before it. Each episode gives one tidy row; `summarize` turns rows into two success measures,
 each with a 95% interval: `success`, the share of tasks whose every constraint holds at the
 end, and `constraints`, the mean share of a task's constraints that hold at the end (the
 per-constraint measure the paper's Random numbers are; docs/environments.md), with mean steps
@@ -141,7 +143,7 @@ def run_episode(agent, env, seed: int, on_step=None) -> dict:
     outcome). `on_step(agent, before, action, after, outcome)`, if given, sees every step
     (`step_trace`)."""
     obs, info = env.reset(seed=seed)
-    agent.reset(obs, info)
+    agent.reset(obs, info, seed=seed)          # the agent reseeds too: each task's row is its own
     steps = randoms = 0
     outcomes = dict.fromkeys(STEP_OUTCOMES, 0)
     terminated = truncated = False

@@ -44,6 +44,14 @@ def seed_everything(seed: int) -> np.random.Generator:
     return np.random.default_rng(int(seed))
 
 
+def task_seed_of(agent_seed: int, task_seed: int) -> int:
+    """The seed an agent seeded `agent_seed` draws with on the task whose env was reset with
+    `task_seed` (agents reseed in `reset`): a task's moves then depend on that task alone, not
+    on the tasks run before it, so a task set split over workers or run in another order gives
+    the same rows."""
+    return int(np.random.SeedSequence([int(agent_seed), int(task_seed), 0xA6E7]).generate_state(1)[0])
+
+
 def progress_enabled() -> bool:
     """Bars are on unless NCS_LITE_PROGRESS=0 (set by CI and `make test`)."""
     return os.environ.get("NCS_LITE_PROGRESS", "1") not in ("0", "false", "no")

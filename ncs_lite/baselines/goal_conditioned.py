@@ -324,8 +324,8 @@ class PolicyAgent:
     def __init__(self, model: nn.Module):
         self.model = model.eval()
 
-    def reset(self, obs, info) -> None:
-        pass   # the goal image comes with every observation
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        pass   # the goal image comes with every observation; the policy draws nothing
 
     def act(self, obs, info):
         image, goal = observation_tensors(obs)

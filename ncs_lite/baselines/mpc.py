@@ -31,6 +31,7 @@ import torch
 
 from ..config import ALIGN_RULES
 from ..ncs.policy import align
+from ..utils import task_seed_of
 from .cem import CEMConfig, cem_minimize
 from .goal_conditioned import preset_config
 
@@ -95,11 +96,16 @@ class MPCAgent:
         low, high = (torch.as_tensor(np.asarray(v, np.float32)) for v in (action_space.low, action_space.high))
         self.lower = low.expand(self.cfg.horizon, -1).clone()         # (H, A)
         self.upper = high.expand(self.cfg.horizon, -1).clone()
-        self.generator = torch.Generator().manual_seed(int(seed))
+        self.seed = int(seed)
+        self.generator = torch.Generator().manual_seed(self.seed)
         self._goal = self._plan = None
         self.last: dict = {}
 
-    def reset(self, obs, info) -> None:
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        """A new task: read its goal; with the task's env seed `seed`, CEM samples anew from a
+        seed of it and the agent's (`task_seed_of`)."""
+        if seed is not None:
+            self.generator.manual_seed(task_seed_of(self.seed, seed))
         self._goal = slots_of(self.perception.goal(obs, info))     # the goal image is fixed per episode
         self._plan = None
         self.last = {}

@@ -38,6 +38,7 @@ from scipy.sparse.csgraph import dijkstra
 from ..ncs.graph import (ACTION_DECIMALS, METRICS_BY_STATE, bind, check_features, check_graph_file, cluster,
                          content_digest, edge_tensors)
 from ..tensor_files import atomic_torch_save, file_kind, load_tensor_file
+from ..utils import task_seed_of
 from .goal_conditioned import as_buffer
 
 GRAPH_KIND = "nf-graph"
@@ -255,7 +256,8 @@ class NFAgent:
 
     def __init__(self, graph: SetGraph, perception, action_space, seed: int = 0):
         self.graph, self.perception, self.action_space = graph, perception, action_space
-        self.action_space.seed(int(seed))
+        self.seed = int(seed)
+        self.action_space.seed(self.seed)
         self.fallbacks: Counter = Counter()
         self.decisions = 0
         self._goal_set = self._goal_node = None
@@ -266,7 +268,11 @@ class NFAgent:
         """Fraction of all decisions so far that were random fallbacks."""
         return sum(self.fallbacks.values()) / max(1, self.decisions)
 
-    def reset(self, obs, info) -> None:
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        """A new task: bind its goal; with the task's env seed `seed`, the fallbacks draw
+        anew from a seed of it and the agent's (`task_seed_of`)."""
+        if seed is not None:
+            self.action_space.seed(task_seed_of(self.seed, seed))
         goal = self.perception.goal(obs, info)      # the goal image is fixed per episode
         self._goal_set = self.graph.bind(goal.states)[0]
         self._goal_node = self.graph.index.get(self._goal_set)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..utils import task_seed_of
+
 
 class RandomAgent:
     """`env.action_space.sample()` every step: a uniform point of the Box (w, dw), each of its
@@ -19,11 +21,14 @@ class RandomAgent:
     within the 5 cm pick threshold of an object."""
 
     def __init__(self, action_space, seed: int = 0):
-        self.action_space = action_space
-        self.action_space.seed(int(seed))
+        self.action_space, self.seed = action_space, int(seed)
+        self.action_space.seed(self.seed)
 
-    def reset(self, obs, info) -> None:
-        pass
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        """A new task; with the task's env seed `seed`, draw anew from a seed of it and the
+        agent's (`task_seed_of`), else go on drawing."""
+        if seed is not None:
+            self.action_space.seed(task_seed_of(self.seed, seed))
 
     def act(self, obs, info):
         return self.action_space.sample(), True
@@ -50,11 +55,13 @@ class RandomObjectAgent:
         else:
             raise ValueError(f"RandomObjectAgent needs a grid env (env.cells) or a table env (config.table_x, "
                              f"config.table_y), got a {type(env).__name__}")
-        self.action_space = env.action_space
-        self.rng = np.random.default_rng(int(seed))
+        self.action_space, self.seed = env.action_space, int(seed)
+        self.rng = np.random.default_rng(self.seed)
 
-    def reset(self, obs, info) -> None:
-        pass
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        """As `RandomAgent.reset`."""
+        if seed is not None:
+            self.rng = np.random.default_rng(task_seed_of(self.seed, seed))
 
     def drop(self) -> np.ndarray:
         """(2,) a uniformly random place: a cell's centre, or a point of the table."""

@@ -57,6 +57,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from ..config import ALIGN_RULES, NCSConfig
+from ..utils import task_seed_of
 from .dependencies import RULES, select_dependent
 from .graph import EXAMPLE_ACTIONS, TransitionGraph, isolate_distance
 
@@ -165,14 +166,20 @@ class NCSAgent:
         self.supports = None if dependencies is False else graph.supports
         self._basis = graph.moved_subspace(nearest_variance)   # edge actions from states compare along it
         self.graph, self.perception, self.action_space = graph, perception, action_space
-        self.rng = np.random.default_rng(seed)
-        self.action_space.seed(int(seed))
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+        self.action_space.seed(self.seed)
         self._goal = None
         self.last = {}
         self._retry = None          # ((pair, src, dst), rank) of the latest action read from states
         self.rules = Counter()      # with dependencies: how often each rule chose this episode's moves
 
-    def reset(self, obs, info) -> None:
+    def reset(self, obs, info, seed: int | None = None) -> None:
+        """A new task: read its goal; with the task's env seed `seed`, select-constraint and
+        the fallbacks draw anew from a seed of it and the agent's (`task_seed_of`)."""
+        if seed is not None:
+            self.rng = np.random.default_rng(task_seed_of(self.seed, seed))
+            self.action_space.seed(task_seed_of(self.seed, seed))
         self._goal = self.perception.goal(obs, info)   # the goal image is fixed per episode
         self.last = {}
         self._retry = None

@@ -238,7 +238,7 @@ def test_oracle_solves_tasks_and_random_does_not(oracle_graph, tmp_path):
 
 def test_an_action_that_moves_nothing_is_counted_as_a_noop():
     class PicksTheFloor:                    # a pick at an outer corner, where no cube can be
-        def reset(self, obs, info):
+        def reset(self, obs, info, seed=None):
             pass
 
         def act(self, obs, info):
