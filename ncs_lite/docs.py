@@ -702,6 +702,24 @@ def _split_times(times: dict) -> dict[str, dict[str, float]]:
     return out
 
 
+def _time_commits(times: dict) -> str:
+    """The commit the notebook times were measured at ("commit abc1234"), or, when notebooks
+    last ran at different commits (a partial rerun), each commit with the envs whose
+    notebooks ran there ("commits abc1234 (block-rearrange, robogym-rearrange), def5678
+    (block-stacking)"); "" when none is recorded. A notebook without its own commit
+    ("commits", `record_notebook_time`) ran at the file's "commit"."""
+    envs_at: dict[str, list[str]] = {}
+    for key in times.get("seconds") or {}:
+        commit = (times.get("commits") or {}).get(key, times.get("commit"))
+        if commit:
+            env = split_notebook_run(key)[1]
+            if env not in envs_at.setdefault(commit, []):
+                envs_at[commit].append(env)
+    if len(envs_at) <= 1:
+        return f"commit {next(iter(envs_at))}" if envs_at else ""
+    return "commits " + ", ".join(f"{c} ({', '.join(e)})" for c, e in envs_at.items())
+
+
 def _timed_envs(per: dict[str, dict[str, float]]) -> tuple[str, ...]:
     """The envs of the times' columns: block-rearrange and robogym-rearrange always, the others
     once some notebook has a time on them."""
@@ -716,11 +734,14 @@ def render_times_block(times: dict) -> str:
     by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in _timed_envs(per)}
     total = sum(by_env.values())
     preset = times.get("preset", DEFAULT_PRESET)
-    text = (f"The last `make reproduce` ran the notebooks in {format_seconds(total)} at `{preset}` "
+    mixed = _time_commits(times).startswith("commits ")
+    text = (("The notebooks' last runs took " if mixed else "The last `make reproduce` ran the notebooks in ")
+            + f"{format_seconds(total)} at `{preset}` "
             f"({format_seconds(by_env['block-rearrange'])} on block-rearrange, "
             f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange"
             + "".join(f", {format_seconds(by_env[env])} on {env}" for env in by_env if env not in BLOCK_ENVS)
-            + "; one thread per process, `figures/notebook_times.json`)")
+            + "; one thread per process" + (f", {_time_commits(times)}" if mixed else "")
+            + ", `figures/notebook_times.json`)")
     run = times.get("run")
     if not run:
         return text + "; creating `.venv` the first time comes on top."
@@ -778,7 +799,7 @@ def render_results_md(tables: dict, times: dict, titles: dict) -> str:
     lines += ["## Notebook times", ""]
     if per:
         lines.append(f"`make reproduce` at `{times.get('preset', DEFAULT_PRESET)}`, one thread per process"
-                     + (f", commit {times['commit']}" if times.get("commit") else "")
+                     + (f", {_time_commits(times)}" if _time_commits(times) else "")
                      + (" (dirty tree)" if times.get("dirty") else "") + ":")
         lines.append("")
         envs = _timed_envs(per)

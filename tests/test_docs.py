@@ -241,3 +241,26 @@ def test_a_notebooks_run_on_each_env_has_one_name():
     with pytest.raises(ValueError, match="env must be one of block-rearrange, robogym-rearrange, block-stacking, "
                                          "got 'stacking'"):
         notebook_run("06_action_selection", "stacking")
+
+
+def test_times_of_a_partial_rerun_name_each_commit(tmp_path, monkeypatch):
+    """A notebook rerun alone keeps its own commit, the times recorded before keep the file's,
+    and the README and docs/results.md then name each commit with its envs, not one."""
+    import json
+    from ncs_lite.docs import render_results_md, render_times_block
+    from ncs_lite.experiments import reproduce
+
+    path = tmp_path / "notebook_times.json"
+    path.write_text(json.dumps({"preset": "reduced", "commit": "aaaaaaa", "seconds": {"04_dslate_training": 60.0}}))
+    monkeypatch.setattr(reproduce, "figures_dir", lambda: tmp_path)
+    monkeypatch.setattr(reproduce, "git_commit", lambda: "bbbbbbb")
+    reproduce.record_notebook_time("04_dslate_training_stacking", 180.0)
+    times = dict(json.loads(path.read_text()), dirty=False)
+    assert times["commits"] == {"04_dslate_training": "aaaaaaa", "04_dslate_training_stacking": "bbbbbbb"}
+    text = render_times_block(times)
+    assert text.startswith("The notebooks' last runs took 4.0 min") and \
+        "commits aaaaaaa (block-rearrange), bbbbbbb (block-stacking)" in text
+    assert "commits aaaaaaa (block-rearrange), bbbbbbb (block-stacking):" in render_results_md({}, times, {})
+    times["commits"]["04_dslate_training"] = "bbbbbbb"                 # a whole run: one commit
+    assert render_times_block(times).startswith("The last `make reproduce` ran the notebooks in 4.0 min")
+    assert "one thread per process, commit bbbbbbb:" in render_results_md({}, times, {})

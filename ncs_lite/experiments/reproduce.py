@@ -39,8 +39,8 @@ from ..ncs.graph import TransitionGraph, graph_from_buffer
 from ..ncs.perception import acting_restarts, scene_slots
 from ..sweeps import check_executor
 from ..training import EXTENDABLE, train
-from ..utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, progress,
-                    provenance, relative_to_repo, sha256_file, source_hash)
+from ..utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, git_commit,
+                    progress, provenance, relative_to_repo, sha256_file, source_hash)
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
                          run_comparison)
 from .hyperparameters import AXES, fig9_table
@@ -384,10 +384,14 @@ def _update_times(preset: str, change) -> None:
 
 
 def record_notebook_time(notebook: str, seconds: float, preset: str = "reduced") -> None:
-    """Add one notebook's wall time to figures/notebook_times.json (`make reproduce` calls it
-    after each notebook; the notebooks' openings quote it)."""
+    """Add one notebook's wall time, and the commit it ran at, to figures/notebook_times.json
+    (`make reproduce` calls it after each notebook; the notebooks' openings quote it)."""
     def add(times):
-        times.setdefault("seconds", {})[notebook] = round(float(seconds), 1)
+        seconds_, commits = times.setdefault("seconds", {}), times.setdefault("commits", {})
+        for key in seconds_:                  # times recorded before each kept its commit: the file's
+            commits.setdefault(key, times.get("commit"))
+        seconds_[notebook] = round(float(seconds), 1)
+        commits[notebook] = git_commit()      # a partial rerun leaves notebooks of several commits
 
     _update_times(preset, add)
 
