@@ -217,7 +217,7 @@ class NCSAgent:
             return self._random("every constraint looks satisfied")
         pick = choice.selected
         if from_states:
-            action = self._action_from_states((int(g_idx[pick]), choice.src, choice.dst),
+            action = self._action_from_states(int(g_idx[pick]), choice.src, choice.dst,
                                               cur.states[c_idx[pick]], goal.states[g_idx[pick]])
         else:
             action = self.graph.action(choice.src, choice.dst)
@@ -248,22 +248,24 @@ class NCSAgent:
             # move (a path's hop, a clear) at the node it goes to
             onto_goal = d.pair is not None and d.dst == goal_nodes[g_idx[d.pair]]
             after = goal.states[g_idx[d.pair]] if onto_goal else self.graph.centroids[d.dst]
-            action = self._action_from_states((d.pair, d.src, d.dst), cur.states[d.entity], after)
+            action = self._action_from_states(d.pair, d.src, d.dst, cur.states[d.entity], after)
         else:
             action = self.graph.action(d.src, d.dst)
         self.last["action"] = action
         return action, False
 
-    def _action_from_states(self, key: tuple, before, after):
-        """The action read from the states on the edge of `key` (..., src, dst) (`edge_action`
-        "nearest", "compose" or "readout"): its rank-th candidate, where the rank counts how
-        many times in a row this decision was taken. The same decision again means the last
-        try missed (a move that worked leaves another node behind, or lands within the goal's
-        node short of the goal), so the next candidate is tried."""
+    def _action_from_states(self, pair, src: int, dst: int, before, after):
+        """The action on edge src -> dst read from the states `before` (the entity's) and `after`
+        (its target's) (`edge_action` "nearest", "compose" or "readout"): the rank-th
+        candidate, where the rank counts how many times in a row `pair` (a goal entity; None
+        for a clear) was moved along this edge. The same decision again means the last try
+        missed (a move that worked leaves another node behind, or lands within the goal's node
+        short of the goal), so the next candidate is tried."""
+        key = (pair, src, dst)
         rank = self._retry[1] + 1 if self._retry is not None and self._retry[0] == key else 0
         self._retry = (key, rank)
         self.last["rank"] = rank
-        return self.graph.action(key[-2], key[-1], before, after, rank, basis=self._basis, mode=self.edge_action)
+        return self.graph.action(src, dst, before, after, rank, basis=self._basis, mode=self.edge_action)
 
     def _random(self, why: str):
         action = self.action_space.sample()

@@ -113,3 +113,29 @@ def test_the_oracle_stacks_towers_with_dependencies(stacking_oracle_graph):
     assert with_rules > np.mean([r["success"] for r in rows[False]])
     assert sum(r["rule_direct"] for r in rows[True]) > 0
     assert "rule_direct" not in rows[False][0]            # no rules without dependencies
+
+
+def test_the_dependent_path_reads_actions_from_states_and_retries_a_missed_move(stacking_oracle_graph):
+    """On block-stacking the graph's edges act through their transitions ("nearest"): the rules'
+    move takes the action of the edge's nearest transition, and the same move chosen again
+    (the scene did not change: the last try missed) takes the next nearest."""
+    from ncs_lite.evaluation import agent_factory
+    graph = stacking_oracle_graph[True]
+    assert graph.edge_action == "nearest"
+    env = TaskSet(env="block-stacking", num_objects=3, episodes=1, seed=3).make_env()
+    try:
+        agent = agent_factory("ncs-oracle", graph=graph, ncs=NCSConfig(state="slot"))(env)
+        for seed in range(20):                           # a task whose first move is direct
+            obs, info = env.reset(seed=seed)
+            agent.reset(obs, info, seed=seed)
+            first, _ = agent.act(obs, info)
+            if agent.last["rule"] == "direct":
+                break
+        ranks = [agent.last["rank"]]
+        again, _ = agent.act(obs, info)                 # the same scene: the same decision, retried
+        ranks.append(agent.last["rank"])
+    finally:
+        env.close()
+    assert agent.last["rule"] == "direct" and ranks == [0, 1]
+    src, dst = agent.last["src"], agent.last["dst"]
+    assert any(np.allclose(first, a, atol=1e-6) for a in graph.edges[src, dst])     # one of the edge's own actions
