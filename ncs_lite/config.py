@@ -192,6 +192,9 @@ class TrainConfig:
     # states without it, and a model that plans with the dynamics (MPC) reads them with it
     # (why: docs/recipe.md, `train.refit_steps`)
     refit_steps: int = 0
+    dynamics_prior: bool = False  # the dynamics phase reads states with slots.position_prior too,
+    #                             as every read after it does; the refit phase, which trains the
+    #                             dynamics again on such states, then repeats it (refit_steps 0)
     # colour augmentation of the segmentation path (kit, not in the paper; data/augment.py):
     # "none"; "channels" = the mixture loss reads each video with its RGB channels in a
     # random order; "channels_gamma" = and each channel raised to a random power. The

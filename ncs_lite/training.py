@@ -165,7 +165,8 @@ def _all_phases(cfg: DSlateConfig) -> list[Phase]:
         Phase("polish", t.polish_steps, "slate", SLATE_PARTS[1:], lr=t.polish_lr,
               foreground_weight=t.polish_foreground_weight, mixture_error=t.polish_mixture_error,
               augment=t.color_augment),
-        Phase("dynamics", t.dynamics_steps, "dynamics", ("dynamics",), lr=t.dynamics_lr),
+        Phase("dynamics", t.dynamics_steps, "dynamics", ("dynamics",), lr=t.dynamics_lr,
+              position_prior=prior if t.dynamics_prior else 0.0),
         Phase("render_masks", t.render_mask_steps, "render_masks", ("renderer",), lr=t.render_lr,
               position_prior=prior),
         Phase("render", t.render_steps - t.render_mask_steps, "render", ("renderer",), lr=t.render_lr,
@@ -294,7 +295,7 @@ EXTENDABLE = {"train.dynamics_steps": "dynamics", "train.dynamics_lr": "dynamics
               "train.render_steps": "render_masks", "train.render_lr": "render_masks",
               "train.render_mask_steps": "render_masks",
               "mixture.render_hidden": "render_masks", "slots.position_prior": "render_masks",
-              "train.refit_steps": "refit"}
+              "train.refit_steps": "refit", "train.dynamics_prior": "dynamics"}
 # what an extension may add to the model: the renderer (mixture.render_hidden), new at its phase
 ADDED_BY_EXTENDING = ("renderer.",)
 
@@ -310,7 +311,8 @@ def _extend_problems(ckpt: dict, cfg, precision: str, env: str, data_meta: dict)
         problems.append(f"it stopped at step {step} of its {done}: --resume it first")
     changed = [f for f in EXTENDABLE if any(d.startswith(f"{f}:") for d in differences)]
     start = {p.name: p.start for p in _all_phases(cfg)}
-    starts = {f: start[EXTENDABLE[f]] for f in changed}
+    acts_from = dict(EXTENDABLE, **({"slots.position_prior": "dynamics"} if cfg.train.dynamics_prior else {}))
+    starts = {f: start[acts_from[f]] for f in changed}
     late = [f"{f} (from step {starts[f]})" for f in changed if step > starts[f]]
     if late:
         problems.append(f"it is at step {step}, past where the changed fields act: {', '.join(late)}; "
