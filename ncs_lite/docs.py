@@ -734,13 +734,14 @@ def render_times_block(times: dict) -> str:
     by_env = {env: sum(t.get(env, 0.0) for t in per.values()) for env in _timed_envs(per)}
     total = sum(by_env.values())
     preset = times.get("preset", DEFAULT_PRESET)
-    mixed = _time_commits(times).startswith("commits ")
+    commits = _time_commits(times)
+    mixed = commits.startswith("commits ")
     text = (("The notebooks' last runs took " if mixed else "The last `make reproduce` ran the notebooks in ")
             + f"{format_seconds(total)} at `{preset}` "
             f"({format_seconds(by_env['block-rearrange'])} on block-rearrange, "
             f"{format_seconds(by_env['robogym-rearrange'])} for notebooks 04-07 on robogym-rearrange"
             + "".join(f", {format_seconds(by_env[env])} on {env}" for env in by_env if env not in BLOCK_ENVS)
-            + "; one thread per process" + (f", {_time_commits(times)}" if mixed else "")
+            + "; one thread per process" + (f", {commits}" if mixed else "")
             + ", `figures/notebook_times.json`)")
     run = times.get("run")
     if not run:
@@ -798,8 +799,9 @@ def render_results_md(tables: dict, times: dict, titles: dict) -> str:
     per = _split_times(times)
     lines += ["## Notebook times", ""]
     if per:
+        commits = _time_commits(times)
         lines.append(f"`make reproduce` at `{times.get('preset', DEFAULT_PRESET)}`, one thread per process"
-                     + (f", {_time_commits(times)}" if _time_commits(times) else "")
+                     + (f", {commits}" if commits else "")
                      + (" (dirty tree)" if times.get("dirty") else "") + ":")
         lines.append("")
         envs = _timed_envs(per)

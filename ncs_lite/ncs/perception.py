@@ -292,11 +292,9 @@ def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
 
 def _slot_states(model, r, slot_position: str) -> torch.Tensor:
     """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says."""
-    if slot_position == "attention":
-        return r.states.cpu().float()
-    read = model.assigned_states if slot_position == "assigned" else model.base_states
-    states = read(r.states, r.attention)
-    return states.cpu().float()
+    reads = {"attention": lambda states, attention: states, "assigned": model.assigned_states,
+             "base": model.base_states}
+    return reads[slot_position](r.states, r.attention).cpu().float()
 
 
 # code the transitions of a buffer depend on (besides the buffer and the perception's settings)

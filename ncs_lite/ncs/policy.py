@@ -178,8 +178,9 @@ class NCSAgent:
         """A new task: read its goal; with the task's env seed `seed`, select-constraint and
         the fallbacks draw anew from a seed of it and the agent's (`task_seed_of`)."""
         if seed is not None:
-            self.rng = np.random.default_rng(task_seed_of(self.seed, seed))
-            self.action_space.seed(task_seed_of(self.seed, seed))
+            drawn = task_seed_of(self.seed, seed)
+            self.rng = np.random.default_rng(drawn)
+            self.action_space.seed(drawn)
         self._goal = self.perception.goal(obs, info)   # the goal image is fixed per episode
         self.last = {}
         self._retry = None
