@@ -266,7 +266,8 @@ def _ncs_overrides(table: dict) -> list[str]:
 def table_command(path: str, table: dict) -> str:
     """The command that regenerates a table, rebuilt from the table's metadata. `path` is
     the table's JSON file relative to figures/tables/ (a table in a subfolder was written
-    with `--out-dir`)."""
+    with `--out-dir`). It starts with `OMP_NUM_THREADS=N` where the table recorded its thread
+    count, the condition for the same digits."""
     name = table.get("table") or Path(path).stem
     folder = Path(path).parent.as_posix()
     out_dir = [] if folder in ("", ".") else ["--out-dir", f"figures/tables/{folder}"]
@@ -325,7 +326,8 @@ def table_command(path: str, table: dict) -> str:
                 args += [flag, str(table[key])]
     else:
         return "(no command recorded)"
-    return " ".join(["python -m ncs_lite", *args, *out_dir])
+    threads = [f"OMP_NUM_THREADS={table['threads']}"] if table.get("threads") else []
+    return " ".join([*threads, "python -m ncs_lite", *args, *out_dir])
 
 
 # --------------------------------------------------------------------------- one table

@@ -113,6 +113,9 @@ def test_command_is_rebuilt_from_the_tables_metadata():
     assert table_command("robogym_reduced.json", SINGLE) == "python -m ncs_lite reproduce robogym"
     assert table_command("robogym_reduced.json", {**SINGLE, "objects": [4], "checkpoint": "other.pt"}) == \
         "python -m ncs_lite reproduce robogym --checkpoint other.pt --objects 4"
+    # a table that recorded its thread count: the command sets it (the condition for the same digits)
+    assert table_command("robogym_reduced.json", {**SINGLE, "threads": 1}) == \
+        "OMP_NUM_THREADS=1 python -m ncs_lite reproduce robogym"
 
 
 def test_headline_prefers_a_seeds_table_and_skips_absent_ones():
