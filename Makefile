@@ -171,6 +171,8 @@ $(ASSETS)/dslate_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
 	else $(PY) -m ncs_lite train --env robogym-rearrange --preset reduced --data $(RG_DATA) --out $@ --seed $(RG_SEED); fi
 $(RG_GRAPH_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 20000 --seed 0 --out $(RG_GRAPH_DATA)
+# fig9 rebuilds the shipped graph's variants from this buffer (`data.find_buffer`: by manifest hash)
+fig9: | $(RG_GRAPH_DATA)/manifest.json
 $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt: | $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(RG_GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --checkpoint $(ASSETS)/dslate_robogym_rearrange_reduced.pt --data $(RG_GRAPH_DATA) --out $@
 $(ASSETS)/graph_robogym_rearrange_oracle_position.pt: | $(RG_GRAPH_DATA)/manifest.json

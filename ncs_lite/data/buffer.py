@@ -169,6 +169,27 @@ def manifest_hash(directory: str | Path) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def find_buffer(recorded: str | Path, manifest_sha256: str | None) -> Path:
+    """The buffer a graph or table names: the directory it recorded when that buffer is there,
+    else the buffer in the cache folder whose manifest hash is `manifest_sha256` (the same
+    episodes under another folder name: `make`'s, or the code-keyed name of `cached_buffer`
+    before an edit of its code). FileNotFoundError naming both when neither is found; with
+    `manifest_sha256` None (a file that recorded none), the recorded directory as it is."""
+    recorded = Path(recorded)
+    if manifest_sha256 is None or ((recorded / "manifest.json").is_file()
+                                   and manifest_hash(recorded) == manifest_sha256):
+        return recorded
+    for manifest in sorted((cache_dir() / "buffers").glob("*/manifest.json")):
+        try:
+            if manifest_hash(manifest.parent) == manifest_sha256:
+                return manifest.parent
+        except ValueError:                  # a broken buffer is not the one asked for
+            continue
+    raise FileNotFoundError(f"no buffer at {recorded} and none with manifest hash {manifest_sha256} in "
+                            f"{cache_dir() / 'buffers'}; collect it with `python -m ncs_lite collect` "
+                            "and the settings in the graph's info (env, episodes, seed)")
+
+
 def load_buffer(directory: str | Path) -> dict[str, np.ndarray]:
     """All episodes of a finished buffer as arrays (E = episodes, k = cubes):
 

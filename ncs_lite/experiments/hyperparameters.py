@@ -22,7 +22,7 @@ from dataclasses import asdict, replace
 
 from ..cache import buffer_digest, cached, code_digest
 from ..config import NCSConfig, to_dict
-from ..data import load_manifest
+from ..data import find_buffer, load_manifest
 from ..evaluation import TaskSet, evaluate_job, summarize
 from ..ncs.graph import TransitionGraph, graph_from_buffer
 from ..ncs.perception import graph_perception
@@ -50,14 +50,15 @@ OBJECTS = 4
 
 def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int | None = None):
     """The graph `graph` would be with `clusters` nodes or from its buffer's first `episodes`
-    episodes: `graph_from_buffer` on the same buffer (`graph.info["data"]`), with the same
+    episodes: `graph_from_buffer` on the same buffer (`graph.info["data"]`, or the cache's buffer
+    with its manifest hash, `data.find_buffer`), with the same
     reading of it (`model`'s entities with the slots the graph recorded, or ground truth for an
     oracle graph, `model` None) and the same settings (`graph.info["ncs"]`). Cached by the
     buffer, the reading, the settings and the code."""
     info = graph.info
     ncs = NCSConfig(**info["ncs"])
     ncs = replace(ncs, clusters=clusters or ncs.clusters)
-    data = REPO_DIR / info["data"]
+    data = find_buffer(REPO_DIR / info["data"], info.get("manifest_sha256"))
     read_slots = info.get("read_slots")
 
     def build():

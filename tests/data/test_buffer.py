@@ -231,3 +231,20 @@ def test_cached_buffer_is_keyed_by_the_code_that_records_it(tmp_path, monkeypatc
     new = cached_buffer(2)
     assert new != old and new.name.endswith("-0123456789abcdef") and (new / "shard-00000.npz").exists()
     assert manifest_hash(new) == manifest_hash(old)     # what checkpoints name a buffer by: they still fit
+
+
+def test_find_buffer_by_its_manifest_hash(tmp_path, monkeypatch):
+    """A graph names its buffer by folder and manifest hash: when the folder is gone (collected
+    under another name), the cache's buffer with that hash is the one; none is a clear error."""
+    from ncs_lite.data import cached_buffer, find_buffer, manifest_hash
+
+    monkeypatch.setenv("NCS_LITE_CACHE", str(tmp_path))
+    there = cached_buffer(2)
+    sha = manifest_hash(there)
+    assert find_buffer(there, sha) == there
+    assert find_buffer(tmp_path / "moved-away", sha) == there
+    assert find_buffer(tmp_path / "moved-away", None) == tmp_path / "moved-away"   # nothing to look up by
+    with pytest.raises(FileNotFoundError, match=r"none with manifest hash 0123456789abcdef"):
+        find_buffer(tmp_path / "moved-away", "0123456789abcdef")
+    other = cached_buffer(2, seed=1)                 # a buffer at the recorded folder, but another one
+    assert find_buffer(other, sha) == there
