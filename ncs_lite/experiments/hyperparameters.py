@@ -51,10 +51,10 @@ OBJECTS = 4
 def graph_like(graph, model=None, *, clusters: int | None = None, episodes: int | None = None):
     """The graph `graph` would be with `clusters` nodes or from its buffer's first `episodes`
     episodes: `graph_from_buffer` on the same buffer (`graph.info["data"]`, or the cache's buffer
-    with its manifest hash, `data.find_buffer`), with the same
-    reading of it (`model`'s entities with the slots the graph recorded, or ground truth for an
-    oracle graph, `model` None) and the same settings (`graph.info["ncs"]`). Cached by the
-    buffer, the reading, the settings and the code."""
+    with its manifest hash: `data.find_buffer`), with the same reading of it (`model`'s entities
+    with the slots the graph recorded, or ground truth for an oracle graph, `model` None) and the
+    same settings (`graph.info["ncs"]`). Cached by the buffer, the reading, the settings and the
+    code."""
     info = graph.info
     ncs = NCSConfig(**info["ncs"])
     ncs = replace(ncs, clusters=clusters or ncs.clusters)
