@@ -32,6 +32,7 @@ MixtureAlpha = Literal["decoder", "attention"]    # MixtureConfig.alpha (models/
 MixtureAppearance = Literal["slot", "type"]       # MixtureConfig.appearance
 MixtureError = Literal["mixed", "per_slot"]       # how DSlate.mixture_error scores the paint
 ColorAugment = Literal["none", "channels", "channels_gamma"]   # TrainConfig.color_augment (data/augment.py)
+PolishLoss = Literal["slate", "mixture"]          # TrainConfig.polish_loss (training.train_step)
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
 SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
 AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
@@ -40,6 +41,7 @@ MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
 MIXTURE_APPEARANCES = typing.get_args(MixtureAppearance)
 MIXTURE_ERRORS = typing.get_args(MixtureError)
 COLOR_AUGMENTS = typing.get_args(ColorAugment)
+POLISH_LOSSES = typing.get_args(PolishLoss)
 ENTITY_STATES = typing.get_args(EntityState)
 SLOT_POSITIONS = typing.get_args(SlotPosition)
 ALIGN_RULES = typing.get_args(AlignRule)
@@ -171,6 +173,11 @@ class TrainConfig:
     polish_mixture_error: MixtureError = "mixed"  # the mixture error of the polish steps (see
     #                             MixtureConfig.error): "per_slot" there splits slots that
     #                             blend two similar colours, once the cubes have slots
+    polish_loss: PolishLoss = "slate"  # what the polish minimises: "slate" DSlate.forward's sum
+    #                             (every part but the dVAE trains on it), "mixture" the mixture
+    #                             decoder's and the state-mask head's losses alone
+    #                             (DSlate.mixture_loss: a third of the step's cost; the SLATE
+    #                             decoder and the dynamics wait for the later phases)
     # dynamics phase (kit, not in the paper; see `reduced`): steps after the polish that train
     # the dynamics alone, on the latent loss against frame t+1's states, with every other
     # part frozen and the slots read as NCS reads them (eval_iterations). Jointly, ce_dyn's
@@ -349,7 +356,8 @@ _IN_RANGE = {
 # fields that take one of a few words
 _CHOICES = {
     "slots.encoder": ("tokens", "cnn"), "mixture.error": MIXTURE_ERRORS,
-    "train.polish_mixture_error": MIXTURE_ERRORS, "mixture.alpha": MIXTURE_ALPHAS,
+    "train.polish_mixture_error": MIXTURE_ERRORS, "train.polish_loss": POLISH_LOSSES,
+    "mixture.alpha": MIXTURE_ALPHAS,
     "mixture.appearance": MIXTURE_APPEARANCES, "train.precision": ("auto", "bf16", "fp32"),
     "train.color_augment": COLOR_AUGMENTS, "train.lr_decay": ("none", "cosine"),
 }

@@ -111,6 +111,8 @@ def autocast(device: torch.device, precision: str):
 # renderer, the one other part, trains alone in the render phases.
 SLATE_PARTS = ("dvae", "token_emb", "pos_emb", "mask_emb", "pixel_encoder", "sa_in", "slot_attn", "decoder",
                "dynamics", "mixture", "state_masks")
+# ... and those the mixture loss alone trains (a polish with `train.polish_loss` "mixture")
+MIXTURE_PARTS = ("pixel_encoder", "sa_in", "slot_attn", "mixture", "state_masks")
 
 
 @dataclass(frozen=True)
@@ -120,7 +122,8 @@ class Phase:
     name: str
     steps: int
     loss: str                   # what it minimises (`train_step`): "dvae" the dVAE's reconstruction
-    #                             alone, "slate" DSlate.forward's sum, "dynamics" the latent loss
+    #                             alone, "slate" DSlate.forward's sum, "mixture" DSlate.mixture_loss
+    #                             (segmentation alone), "dynamics" the latent loss
     #                             (DSlate.dynamics_loss), "render_masks" / "render" DSlate.render_loss
     #                             on slot attention's masks / on the frames
     trains: tuple[str, ...]     # the parts (SLATE_PARTS, "renderer") whose weights move; the rest is frozen
@@ -162,7 +165,8 @@ def _all_phases(cfg: DSlateConfig) -> list[Phase]:
         Phase("dvae_warmup", t.dvae_warmup_steps, "dvae", ("dvae",), dvae_lr=cfg.dvae.lr),
         Phase("main", t.main_steps() - t.dvae_warmup_steps, "slate", SLATE_PARTS, lr=t.lr,
               warmup=t.warmup_steps, decay=t.lr_decay, dvae_lr=cfg.dvae.lr, augment=t.color_augment),
-        Phase("polish", t.polish_steps, "slate", SLATE_PARTS[1:], lr=t.polish_lr,
+        Phase("polish", t.polish_steps, t.polish_loss,
+              SLATE_PARTS[1:] if t.polish_loss == "slate" else MIXTURE_PARTS, lr=t.polish_lr,
               foreground_weight=t.polish_foreground_weight, mixture_error=t.polish_mixture_error,
               augment=t.color_augment),
         Phase("dynamics", t.dynamics_steps, "dynamics", ("dynamics",), lr=t.dynamics_lr,
@@ -557,6 +561,8 @@ def train_step(model: DSlate, opt: torch.optim.Adam, phase: Phase, i: int, frame
             out = model.dynamics_loss(frames, actions)
         elif phase.loss in ("render_masks", "render"):
             out = model.render_loss(frames, masks=phase.loss == "render_masks")
+        elif phase.loss == "mixture":
+            out = model.mixture_loss(frames, phase.foreground_weight, mixture_videos, phase.mixture_error)
         else:
             out = (model if forward is None else forward)(
                 frames, actions, tau, dvae_only=phase.loss == "dvae", foreground_weight=phase.foreground_weight,

@@ -7,7 +7,7 @@ import torch
 from ncs_lite.config import get_preset, to_dict
 from ncs_lite.inference import load_dslate
 from ncs_lite.models.dslate import DSlate
-from ncs_lite.training import SLATE_PARTS, BatchOrder, lr_at, phases, train
+from ncs_lite.training import MIXTURE_PARTS, SLATE_PARTS, BatchOrder, lr_at, phases, train
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +92,33 @@ def test_polish_steps_freeze_the_dvae_and_raise_the_foreground_weight(buffer, tm
         ci(polish_steps=-1).validate()
     with pytest.raises(ValueError, match="train.polish_mixture_error must be 'mixed' or 'per_slot', got 'blend'"):
         ci(polish_mixture_error="blend").validate()
+
+
+def test_a_mixture_polish_trains_segmentation_alone(buffer, tmp_path, monkeypatch):
+    cfg = ci(polish_loss="mixture")                           # 4 scheduled steps, then 2 polish steps
+    main = cfg.train.main_steps()
+    assert [p.loss for p in phases(cfg) if p.name == "polish"] == ["mixture"]
+    before = torch.load(train(cfg, buffer, tmp_path / "m.pt", max_steps=main), weights_only=True)["model"]
+    before = {k: v.clone() for k, v in before.items()}
+    calls, mixture_loss = [], DSlate.mixture_loss
+
+    def spy(self, *args, **kwargs):
+        calls.append(args[1:])
+        return mixture_loss(self, *args, **kwargs)
+
+    monkeypatch.setattr(DSlate, "mixture_loss", spy)
+    monkeypatch.setattr(DSlate, "forward", lambda *a, **k: pytest.fail("the polish ran the full SLATE loss"))
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt", resume=True, max_steps=main + 2),
+                       weights_only=True)["model"]
+    assert [c[0] for c in calls] == [cfg.train.polish_foreground_weight] * 2
+    assert [c[2] for c in calls] == [cfg.train.polish_mixture_error] * 2
+    assert all(c[1] is not None for c in calls)               # the colour-permuted videos (ci: channels)
+    changed = {k.split(".")[0] for k in before if not torch.equal(before[k], after[k])}
+    assert {"slot_attn", "mixture"} <= changed <= set(MIXTURE_PARTS)
+    rows = list(csv.DictReader(open(tmp_path / "m.csv")))[-2:]
+    assert all(float(r["mix"]) > 0 and float(r["ce"]) == float(r["mse"]) == float(r["ce_dyn"]) == 0 for r in rows)
+    with pytest.raises(ValueError, match="train.polish_loss must be 'slate' or 'mixture', got 'tokens'"):
+        ci(polish_loss="tokens").validate()
 
 
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):

@@ -312,10 +312,7 @@ class DSlate(nn.Module):
                                             foreground_weight, mixture_error).mean()
             loss = loss + self.cfg.mixture.weight * out["mix"]
         if self.state_masks is not None:
-            # a read-out: its gradient stops at s (through slot attention it collapsed the masks
-            # into one slot that a bump can draw: docs/HISTORY.md, "The type/state split")
-            logits = self.state_masks(split(slots, self.type_dim)[1].flatten(0, 1).detach())   # (B*T, K, N')
-            out["mask"] = mask_cross_entropy(logits, attn.flatten(0, 1).detach())
+            out["mask"] = self._state_mask_loss(slots, attn)
             loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
         if self.cfg.dynamics.latent_weight > 0:
             target = split(slots[:, 1:], self.type_dim)[1].detach()
@@ -364,6 +361,36 @@ class DSlate(nn.Module):
         slots, attn = self._inputs_to_slots(self._slot_inputs(x), videos.shape[1],
                                             iterations=self.cfg.slots.eval_iterations)
         return x, slots, attn
+
+    def _state_mask_loss(self, slots: torch.Tensor, attn: torch.Tensor) -> torch.Tensor:
+        """The state-mask head's cross-entropy against slot attention's masks, slots (..., K, D)
+        and attention (..., K, N'). A read-out: its gradient stops at s (through slot attention
+        it collapsed the masks into one slot that a bump can draw: docs/HISTORY.md, "The
+        type/state split")."""
+        logits = self.state_masks(split(slots, self.type_dim)[1].flatten(0, -3).detach())   # (M, K, N')
+        return mask_cross_entropy(logits, attn.flatten(0, -3).detach())
+
+    def mixture_loss(self, videos: torch.Tensor, foreground_weight: float | None = None,
+                     mixture_videos: torch.Tensor | None = None, mixture_error: str | None = None) -> dict:
+        """A polish of segmentation alone (TrainConfig.polish_loss "mixture"): the mixture
+        decoder's error (weighted by `mixture.weight`) on slots read from `mixture_videos`
+        (default `videos`) and, with a state-mask head, its cross-entropy. Slot attention, its
+        encoder, the mixture decoder and the head receive gradients; the dVAE, the SLATE
+        decoder and the dynamics are not run. The other LOSSES are 0."""
+        if self.mixture is None:
+            raise ValueError("mixture_loss trains the mixture decoder, but this model has none (mixture.weight = 0)")
+        videos = self._check_images(videos if mixture_videos is None else mixture_videos, 5,
+                                    "videos" if mixture_videos is None else "mixture_videos")
+        x = videos.flatten(0, 1).float() / 255.0                       # (B*T, H, W, 3)
+        slots, attn = self._inputs_to_slots(self._slot_inputs(x), videos.shape[1])
+        mix = self.mixture_error(x, slots.flatten(0, 1), attn.flatten(0, 1), foreground_weight, mixture_error).mean()
+        out = {**dict.fromkeys(LOSSES, mix.new_zeros(())), "mix": mix}
+        loss = self.cfg.mixture.weight * mix
+        if self.state_masks is not None:
+            out["mask"] = self._state_mask_loss(slots, attn)
+            loss = loss + self.cfg.mixture.state_mask_weight * out["mask"]
+        out["loss"] = loss
+        return out
 
     def dynamics_loss(self, videos: torch.Tensor, actions: torch.Tensor) -> dict:
         """The dynamics phase's loss (TrainConfig.dynamics_steps): the latent loss alone, on
