@@ -159,6 +159,15 @@ class TrainConfig:
     lr_decay: str = "none"      # after warm-up: "none" (paper is silent) or "cosine" to 0.1 lr
     dvae_warmup_steps: int = 0  # first steps train the dVAE alone (cheap); the paper trains
     #                             jointly from step 0 (= 0). The other lr schedule starts after.
+    # segmentation starts (kit, not in the paper): after the dVAE warm-up, slot attention, its
+    # encoder, the mixture decoder and the state-mask head train on the mixture loss alone
+    # (DSlate.mixture_loss) from `segmentation_starts` initialisations in turn,
+    # `segmentation_start_steps` steps each on the same batches; the schedule continues from
+    # the start whose mixture error over its last quarter was lowest (training.select_start).
+    # Slot attention is a local search in training too: a start that merges two cubes early
+    # rarely splits them later (why: docs/recipe.md, `train.segmentation_starts`). 0 steps = none
+    segmentation_starts: int = 1
+    segmentation_start_steps: int = 0
     grad_clip: float = 1.0      # clip_grad_norm_ max norm, with norm type below
     grad_clip_norm: str = "inf"  # SLATE reference clips the inf-norm (max |grad|) at 1.0
     precision: str = "auto"     # "auto" | "bf16" | "fp32"; auto = bf16 autocast where supported
@@ -213,9 +222,10 @@ class TrainConfig:
         return max(1, math.ceil(self.epochs * self.episodes_per_epoch / self.batch_size))
 
     def total_steps(self) -> int:
-        """Optimizer steps of a full run: the schedule's, then the polish, dynamics, render and
-        refit steps (the run as a list of phases: training.phases)."""
-        return self.main_steps() + self.polish_steps + self.dynamics_steps + self.render_steps + self.refit_steps
+        """Optimizer steps of a full run: the segmentation starts', the schedule's, then the
+        polish, dynamics, render and refit steps (the run as a list of phases: training.phases)."""
+        return (self.segmentation_starts * self.segmentation_start_steps + self.main_steps() + self.polish_steps
+                + self.dynamics_steps + self.render_steps + self.refit_steps)
 
 
 @dataclass
@@ -316,6 +326,9 @@ def _check_needs(cfg: "DSlateConfig") -> None:
         (cfg.train.color_augment != "none" and not mixture,
          "train.color_augment augments the mixture decoder's input, but mixture.weight "
          "is 0 (no mixture decoder)"),
+        (cfg.train.segmentation_start_steps and not mixture,
+         "train.segmentation_start_steps > 0 trains slot attention on the mixture decoder's loss, "
+         "but mixture.weight is 0 (no mixture decoder)"),
         (cfg.train.polish_steps and not mixture,
          "train.polish_steps > 0 polishes the mixture decoder's slots, but "
          "mixture.weight is 0 (no mixture decoder)"),
@@ -338,7 +351,8 @@ _AT_LEAST = {
     "train.episodes_per_epoch": 1, "train.batch_size": 1, "train.warmup_steps": 0,
     "train.dvae_warmup_steps": 0, "train.checkpoint_every": 1, "train.seed": 0, "train.dynamics_steps": 0,
     "train.render_steps": 0, "train.render_mask_steps": 0, "mixture.render_hidden": 0,
-    "train.refit_steps": 0, "train.polish_steps": 0,
+    "train.refit_steps": 0, "train.polish_steps": 0, "train.segmentation_starts": 1,
+    "train.segmentation_start_steps": 0,
 }
 # float fields: (low, high, what is expected): low < value when high is None, else low <= value < high
 _IN_RANGE = {

@@ -135,6 +135,8 @@ class Phase:
     mixture_error: str | None = None        # the mixture loss's (None: mixture.error)
     augment: str = "none"       # the colour augmentation of the mixture loss's videos (data/augment.py)
     position_prior: float = 0.0  # DSlate.position_prior while it trains
+    starts: int = 1             # initialisations of `trains` tried in turn, `steps // starts` steps
+    #                             each on the same batches; the best is kept (`select_start`)
     start: int = 0              # the run's step at which it begins
 
     @property
@@ -142,9 +144,22 @@ class Phase:
         """The run's step at which the next phase begins."""
         return self.start + self.steps
 
+    @property
+    def start_steps(self) -> int:
+        """Steps of each of the phase's starts (all of them when it has one)."""
+        return self.steps // self.starts
+
+    def data_step(self, step: int) -> int:
+        """The run's step whose batch (and colour augmentation) the run's `step` reads: each
+        start of a phase with several reads the batches of its first."""
+        return self.start + (step - self.start) % self.start_steps
+
     def lr_at(self, i: int) -> float:
         """lr of every part but the dVAE at step `i` of this phase: linear warm-up to `lr`,
-        then constant or a cosine decay to 10% of it at the phase's last step."""
+        then constant or a cosine decay to 10% of it at the phase's last step (each of
+        several starts follows the schedule from its own first step)."""
+        if self.starts > 1:
+            i %= self.start_steps
         warm = min(1.0, (i + 1) / self.warmup) if self.warmup > 0 else 1.0
         if self.decay == "cosine" and i >= self.warmup:
             return cosine_anneal(i - self.warmup, self.lr, 0.1 * self.lr, max(1, self.steps - self.warmup))
@@ -153,7 +168,8 @@ class Phase:
 
 def phases(cfg: DSlateConfig) -> list[Phase]:
     """The run's phases in order, derived from `cfg`; those of 0 steps are left out, so
-    `paper` is one phase ("main", Table 2) and `reduced` seven (why each: docs/recipe.md)."""
+    `paper` is one phase ("main", Table 2) and `reduced` seven (why each: docs/recipe.md);
+    `train.segmentation_start_steps` adds "starts" before the main schedule."""
     return [p for p in _all_phases(cfg) if p.steps > 0]
 
 
@@ -163,6 +179,8 @@ def _all_phases(cfg: DSlateConfig) -> list[Phase]:
     t, prior = cfg.train, cfg.slots.position_prior
     plan = [
         Phase("dvae_warmup", t.dvae_warmup_steps, "dvae", ("dvae",), dvae_lr=cfg.dvae.lr),
+        Phase("starts", t.segmentation_starts * t.segmentation_start_steps, "mixture", MIXTURE_PARTS, lr=t.lr,
+              warmup=t.warmup_steps, augment=t.color_augment, starts=t.segmentation_starts),
         Phase("main", t.main_steps() - t.dvae_warmup_steps, "slate", SLATE_PARTS, lr=t.lr,
               warmup=t.warmup_steps, decay=t.lr_decay, dvae_lr=cfg.dvae.lr, augment=t.color_augment),
         Phase("polish", t.polish_steps, t.polish_loss,
@@ -345,7 +363,7 @@ class _Run:
         return self.out_path.with_suffix(".csv")
 
 
-def _save(run: _Run, model, opt, step: int, seconds: float, last: dict) -> None:
+def _save(run: _Run, model, opt, step: int, seconds: float, last: dict, starts: dict) -> None:
     ckpt = {
         "kind": CHECKPOINT_KIND,
         "format": CHECKPOINT_FORMAT,
@@ -363,6 +381,7 @@ def _save(run: _Run, model, opt, step: int, seconds: float, last: dict) -> None:
         "optimizer": opt.state_dict(),
         "rng": _rng_state(run.device),
         "lineage": list(run.lineage),
+        "starts": starts,
     }
     atomic_torch_save({**ckpt, "content_digest": tensor_digest(ckpt, DIGESTED)}, run.out_path)
 
@@ -480,8 +499,10 @@ def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, c
     model = DSlate(cfg).to(run.device)
     forward = torch.compile(model) if compile else model          # same parameters
     opt = build_optimizer(model, cfg)
-    first, seconds, last_saved = 0, 0.0, None
+    first, seconds, last_saved, starts = 0, 0.0, None, {}
+    chooser = next((p for p in phases(cfg) if p.starts > 1), None)     # the phase whose starts compete
     if ckpt is not None:
+        starts = ckpt.get("starts") or {}
         _restore(model, opt, ckpt, run.out_path, extending)
         _set_rng_state(ckpt["rng"], run.device)
         first, seconds = int(ckpt["step"]), float(ckpt["seconds"])
@@ -499,6 +520,10 @@ def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, c
             log = csv.writer(csv_file)
             for phase in phases(cfg):
                 for step in range(max(first, phase.start), min(stop, phase.end)):
+                    if chooser is not None and chooser.start < step <= chooser.end \
+                            and (step - chooser.start) % chooser.start_steps == 0:
+                        csv_file.flush()
+                        starts = select_start(model, opt, chooser, step, starts, run.csv_path)
                     t0 = time.perf_counter()
                     frames, actions, augmented = _batch(dataset, order, step, phase, run)
                     tau, lr = tau_schedule(step, cfg.dvae), phase.lr_at(step - phase.start)
@@ -521,17 +546,59 @@ def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, c
                                         ce=f"{vals['ce']:.1f}", tau=f"{tau:.2f}")
                     if done % cfg.train.checkpoint_every == 0 or done == stop:
                         csv_file.flush()
-                        _save(run, model, opt, done, seconds, {k: round(v, 4) for k, v in vals.items()})
+                        _save(run, model, opt, done, seconds, {k: round(v, 4) for k, v in vals.items()}, starts)
                         last_saved = done
     finally:
         bar.close()
     return run.out_path
 
 
+def select_start(model: DSlate, opt: torch.optim.Adam, phase: Phase, step: int, record: dict,
+                 csv_path: Path) -> dict:
+    """The run's `step` ends start c - 1 of `phase` (c = (step - phase.start) / its start_steps):
+    score that start by its mean mixture error (the log's "mix") over its last quarter of
+    steps, read from the loss log, and keep its weights of `phase.trains` when it is the best
+    so far; then begin start c from those parts' initialisation for (train.seed, c) or, after
+    the last start, restore the best one's weights. Adam's state of the parts starts afresh
+    either way. `record` (the scores so far, the best start and its weights) is saved in
+    every checkpoint, so a resumed run chooses as an uninterrupted one; returns the new one.
+    The score reads images only (no success, no ground truth)."""
+    c = (step - phase.start) // phase.start_steps
+    window = max(1, phase.start_steps // 4)
+    with open(csv_path, newline="") as f:
+        mix = [float(r["mix"]) for r in csv.DictReader(f) if step - window < int(r["step"]) <= step]
+    if len(mix) != window:
+        raise ValueError(f"the loss log {csv_path} lacks steps {step - window + 1}..{step} of segmentation "
+                         f"start {c - 1}; resume from a checkpoint whose log is complete")
+    scores = list(record.get("scores", [])) + [sum(mix) / window]
+    best = int(np.argmin(scores))
+    trained = {k: v.detach().clone() for k, v in model.state_dict().items() if k.split(".")[0] in phase.trains}
+    kept = trained if best == c - 1 else record["weights"]
+    last = c == phase.starts
+    model.load_state_dict(kept if last else _initial_weights(model.cfg, phase.trains, c), strict=False)
+    for name in phase.trains:
+        part = getattr(model, name, None)
+        for p in part.parameters() if part is not None else ():
+            opt.state.pop(p, None)
+    print(f"segmentation start {c - 1} of {phase.starts}: mixture error {scores[-1]:.2f}"
+          + (f"; keeping start {best} ({scores[best]:.2f})" if last else ""), flush=True)
+    return {"scores": scores, "best": best, "weights": {} if last else kept}
+
+
+def _initial_weights(cfg: DSlateConfig, parts: tuple[str, ...], start: int) -> dict:
+    """The weights of `parts` that a model initialised for (train.seed, `start`) begins with;
+    the global RNG streams are left as they were."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(int(np.random.default_rng([cfg.train.seed, start]).integers(2 ** 31)))
+        fresh = DSlate(cfg)
+    return {k: v for k, v in fresh.state_dict().items() if k.split(".")[0] in parts}
+
+
 def _batch(dataset, order: BatchOrder, step: int, phase: Phase, run: _Run):
     """Step `step`'s videos (B, T, H, W, 3) uint8 and actions (B, T-1, A) on the run's device,
     and the mixture loss's colour-augmented copy of the videos when the phase augments (else
     None), drawn from (seed, step) alone like the batch, so a resumed run sees the same."""
+    step = phase.data_step(step)
     items = [dataset[int(i)] for i in order(step)]
     frames = torch.stack([it["frames"] for it in items]).to(run.device, non_blocking=True)
     actions = torch.stack([it["actions"] for it in items]).to(run.device, non_blocking=True)

@@ -121,6 +121,47 @@ def test_a_mixture_polish_trains_segmentation_alone(buffer, tmp_path, monkeypatc
         ci(polish_loss="tokens").validate()
 
 
+def test_segmentation_starts_keep_the_start_with_the_lowest_mixture_error(buffer, tmp_path, monkeypatch):
+    import ncs_lite.training as training
+
+    cfg = ci(segmentation_starts=3, segmentation_start_steps=4)
+    (chooser,) = [p for p in phases(cfg) if p.name == "starts"]
+    assert (chooser.start, chooser.steps, chooser.starts, chooser.loss) == (1, 12, 3, "mixture")
+    assert starts(cfg)["main"] == 13 and cfg.train.total_steps() == 12 + get_preset("ci").train.total_steps()
+    assert [chooser.data_step(s) for s in range(1, 13)] == [1, 2, 3, 4] * 3          # the same batches
+    assert [chooser.lr_at(i) for i in range(8)] == [chooser.lr_at(i) for i in range(4)] * 2
+    seen, select = [], training.select_start
+
+    def spy(model, *args):
+        before = {k: v.clone() for k, v in model.state_dict().items() if k.split(".")[0] in MIXTURE_PARTS}
+        record = select(model, *args)
+        seen.append((before, {k: model.state_dict()[k].clone() for k in before}, record))
+        return record
+
+    monkeypatch.setattr(training, "select_start", spy)
+    out = train(cfg, buffer, tmp_path / "m.pt", max_steps=14)
+    record = torch.load(out, weights_only=True)["starts"]
+    mix = [float(r["mix"]) for r in csv.DictReader(open(tmp_path / "m.csv"))]
+    assert record["scores"] == pytest.approx([mix[4], mix[8], mix[12]])      # each start's last quarter
+    assert record["best"] == min(range(3), key=record["scores"].__getitem__) and record["weights"] == {}
+    assert len(seen) == 3
+    for c, (trained, now, _) in enumerate(seen[:2], 1):      # starts 1 and 2 begin afresh
+        fresh = training._initial_weights(cfg, MIXTURE_PARTS, c)
+        assert all(torch.equal(now[k], fresh[k]) for k in now)
+        assert not all(torch.equal(now[k], trained[k]) for k in now)
+    best_trained, restored = seen[record["best"]][0], seen[2][1]
+    assert all(torch.equal(restored[k], best_trained[k]) for k in restored)   # the main schedule starts from it
+    # a run stopped inside a start and at a boundary, then resumed, chooses the same
+    train(cfg, buffer, tmp_path / "r.pt", max_steps=6)
+    train(cfg, buffer, tmp_path / "r.pt", resume=True, max_steps=9)
+    resumed = torch.load(train(cfg, buffer, tmp_path / "r.pt", resume=True, max_steps=14), weights_only=True)
+    full = torch.load(out, weights_only=True)
+    assert resumed["starts"] == full["starts"]
+    assert all(torch.equal(full["model"][k], resumed["model"][k]) for k in full["model"])
+    with pytest.raises(ValueError, match="train.segmentation_starts must be an integer >= 1, got 0"):
+        ci(segmentation_starts=0).validate()
+
+
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):
     cfg = ci()                                                # ... then 2 dynamics steps
     end = starts(cfg)["dynamics"]
