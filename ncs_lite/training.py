@@ -11,8 +11,10 @@ What the loop guarantees:
 * Phases as data. A run is a list of phases (`phases(cfg)`, each a `Phase`: its steps, its
   lr schedule, the parts it trains and its loss), derived from the config. `paper` is one
   phase, Table 2's: every part trains jointly, slot attention, decoder and dynamics at a
-  linearly warmed-up lr, the dVAE at its constant lr. `reduced` trains the dVAE alone first,
-  and after the main phase polishes (dVAE frozen, another mixture loss), trains the dynamics
+  linearly warmed-up lr, the dVAE at its constant lr. `reduced` trains the dVAE alone first
+  (with `train.segmentation_start_steps`, then slot attention on the mixture loss alone from
+  several starts, keeping the one with the lowest mixture error: `select_start`), and after the
+  main phase polishes (dVAE frozen, another mixture loss), trains the dynamics
   alone (latent loss), fits the renderer alone (masks, then pixels) and refits the dynamics
   on states read with `slots.position_prior`. The gumbel tau follows the global step
   (cosine, `tau_schedule`). With `TrainConfig.color_augment` the mixture loss reads each
