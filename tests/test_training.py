@@ -160,6 +160,10 @@ def test_segmentation_starts_keep_the_start_with_the_lowest_mixture_error(buffer
     assert all(torch.equal(full["model"][k], resumed["model"][k]) for k in full["model"])
     with pytest.raises(ValueError, match="train.segmentation_starts must be an integer >= 1, got 0"):
         ci(segmentation_starts=0).validate()
+    no_mixture = get_preset("paper")                          # Table 2: no mixture decoder
+    no_mixture.train.segmentation_start_steps = 2
+    with pytest.raises(ValueError, match="train.segmentation_start_steps > 0 trains slot attention on the mixture"):
+        no_mixture.validate()
 
 
 def test_dynamics_steps_train_the_dynamics_alone_on_the_latent_loss(buffer, tmp_path):
