@@ -164,8 +164,9 @@ class TrainConfig:
     # (DSlate.mixture_loss) from `segmentation_starts` initialisations in turn,
     # `segmentation_start_steps` steps each on the same batches; the schedule continues from
     # the start whose mixture error over its last quarter was lowest (training.select_start).
-    # Slot attention is a local search in training too: a start that merges two cubes early
-    # rarely splits them later (why: docs/recipe.md, `train.segmentation_starts`). 0 steps = none
+    # Slot attention is a local search in training too, as NCS's restarts are at reading time.
+    # Not in `reduced`: over three seeds it moved which seeds fail rather than removing
+    # failures (docs/recipe.md, "Tried and not adopted"). 0 steps = none
     segmentation_starts: int = 1
     segmentation_start_steps: int = 0
     grad_clip: float = 1.0      # clip_grad_norm_ max norm, with norm type below

@@ -164,7 +164,7 @@ class Phase:
             i %= self.start_steps
         warm = min(1.0, (i + 1) / self.warmup) if self.warmup > 0 else 1.0
         if self.decay == "cosine" and i >= self.warmup:
-            return cosine_anneal(i - self.warmup, self.lr, 0.1 * self.lr, max(1, self.steps - self.warmup))
+            return cosine_anneal(i - self.warmup, self.lr, 0.1 * self.lr, max(1, self.start_steps - self.warmup))
         return self.lr * warm
 
 
