@@ -503,6 +503,7 @@ def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, c
     opt = build_optimizer(model, cfg)
     first, seconds, last_saved, starts = 0, 0.0, None, {}
     chooser = next((p for p in phases(cfg) if p.starts > 1), None)     # the phase whose starts compete
+    ends = {chooser.start + c * chooser.start_steps for c in range(1, chooser.starts + 1)} if chooser else set()
     if ckpt is not None:
         starts = ckpt.get("starts") or {}
         _restore(model, opt, ckpt, run.out_path, extending)
@@ -522,8 +523,7 @@ def _loop(run: _Run, dataset, order: BatchOrder, stop: int, ckpt: dict | None, c
             log = csv.writer(csv_file)
             for phase in phases(cfg):
                 for step in range(max(first, phase.start), min(stop, phase.end)):
-                    if chooser is not None and chooser.start < step <= chooser.end \
-                            and (step - chooser.start) % chooser.start_steps == 0:
+                    if step in ends:                                  # a segmentation start has ended
                         csv_file.flush()
                         starts = select_start(model, opt, chooser, step, starts, run.csv_path)
                     t0 = time.perf_counter()
@@ -574,14 +574,14 @@ def select_start(model: DSlate, opt: torch.optim.Adam, phase: Phase, step: int, 
                          f"start {c - 1}; resume from a checkpoint whose log is complete")
     scores = list(record.get("scores", [])) + [sum(mix) / window]
     best = int(np.argmin(scores))
-    trained = {k: v.detach().clone() for k, v in model.state_dict().items() if k.split(".")[0] in phase.trains}
-    kept = trained if best == c - 1 else record["weights"]
+    if best == c - 1:
+        kept = {k: v.detach().clone() for k, v in _of_parts(model.state_dict(), phase.trains).items()}
+    else:
+        kept = record["weights"]
     last = c == phase.starts
     model.load_state_dict(kept if last else _initial_weights(model.cfg, phase.trains, c), strict=False)
-    for name in phase.trains:
-        part = getattr(model, name, None)
-        for p in part.parameters() if part is not None else ():
-            opt.state.pop(p, None)
+    for p in _of_parts(dict(model.named_parameters()), phase.trains).values():
+        opt.state.pop(p, None)
     print(f"segmentation start {c - 1} of {phase.starts}: mixture error {scores[-1]:.2f}"
           + (f"; keeping start {best} ({scores[best]:.2f})" if last else ""), flush=True)
     return {"scores": scores, "best": best, "weights": {} if last else kept}
@@ -593,7 +593,13 @@ def _initial_weights(cfg: DSlateConfig, parts: tuple[str, ...], start: int) -> d
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(np.random.default_rng([cfg.train.seed, start]).integers(2 ** 31)))
         fresh = DSlate(cfg)
-    return {k: v for k, v in fresh.state_dict().items() if k.split(".")[0] in parts}
+    return _of_parts(fresh.state_dict(), parts)
+
+
+def _of_parts(tensors: dict, parts: tuple[str, ...]) -> dict:
+    """The entries of a {name: tensor} dict of DSlate (state_dict, named_parameters) that
+    belong to `parts` (its attributes, e.g. MIXTURE_PARTS)."""
+    return {k: v for k, v in tensors.items() if k.split(".")[0] in parts}
 
 
 def _batch(dataset, order: BatchOrder, step: int, phase: Phase, run: _Run):
