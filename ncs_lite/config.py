@@ -21,7 +21,7 @@ __all__ = ["DVAEConfig", "SlotConfig", "DecoderConfig", "DynamicsConfig", "Mixtu
            "TrainConfig", "DSlateConfig", "NCSConfig", "PRESETS", "get_preset", "from_dict", "to_dict",
            "table2_rows", "apply_overrides", "parse_override", "ncs_config", "ALIGN_RULES", "COLOR_AUGMENTS",
            "EDGE_ACTIONS", "ENTITY_STATES", "MIXTURE_ALPHAS", "MIXTURE_APPEARANCES", "MIXTURE_ERRORS",
-           "SLOT_POSITIONS"]
+           "MASK_READS", "SLOT_POSITIONS"]
 
 
 # ------------------------------------------------------------------ the values a choice takes
@@ -35,6 +35,7 @@ ColorAugment = Literal["none", "channels", "channels_gamma"]   # TrainConfig.col
 PolishLoss = Literal["slate", "mixture"]          # TrainConfig.polish_loss (training.train_step)
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
 SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
+MaskRead = Literal["attention", "pixel"]          # NCSConfig.masks (DSlate.infer)
 AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
 EdgeAction = Literal["most_common", "nearest", "compose", "readout"]   # NCSConfig.edge_action (ncs/graph.py)
 MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
@@ -44,6 +45,7 @@ COLOR_AUGMENTS = typing.get_args(ColorAugment)
 POLISH_LOSSES = typing.get_args(PolishLoss)
 ENTITY_STATES = typing.get_args(EntityState)
 SLOT_POSITIONS = typing.get_args(SlotPosition)
+MASK_READS = typing.get_args(MaskRead)
 ALIGN_RULES = typing.get_args(AlignRule)
 EDGE_ACTIONS = typing.get_args(EdgeAction)
 
@@ -433,6 +435,10 @@ class NCSConfig:
     #                             the floor's) or "base" (the lowest row and mean column of the
     #                             pixels it wins, as many slots); None = the model's env's
     #                             (SLOT_POSITION_BY_ENV: "assigned" block-rearrange, "base" block-stacking)
+    masks: MaskRead | None = None  # a slot's mask: "attention" (slot attention's, upsampled from its
+    #                             grid) or "pixel" (each pixel given to the slot whose attention and
+    #                             painted colour explain it best: DSlate.pixel_masks); None = the
+    #                             model's env's (MASKS_BY_ENV: "pixel" block-stacking)
     align: AlignRule = "near"   # which pairs of align's matching are constraints (ncs.policy.align):
     #                             "near" = those whose types are closer than a quarter of the
     #                             scene's median type distance (the kit's; a partial goal's
@@ -465,6 +471,9 @@ class NCSConfig:
         if self.slot_position is not None and self.slot_position not in SLOT_POSITIONS:
             raise ValueError(f"ncs.slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))} "
                              f"or None (the env's), got {self.slot_position!r}")
+        if self.masks is not None and self.masks not in MASK_READS:
+            raise ValueError(f"ncs.masks must be one of {', '.join(map(repr, MASK_READS))} "
+                             f"or None (the env's), got {self.masks!r}")
 
         if self.align not in ALIGN_RULES:
             raise ValueError(f"ncs.align must be one of {', '.join(map(repr, ALIGN_RULES))}, got {self.align!r}")
@@ -611,6 +620,12 @@ RESTARTS_BY_ENV = {"block-rearrange": 32, "robogym-rearrange": 8, "block-stackin
 # behind it and the visible part of a covered cube moves; docs/recipe.md)
 SLOT_POSITION = "attention"
 SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned", "block-stacking": "base"}
+# the masks a model's slots are read with (NCSConfig.masks): slot attention's, upsampled from
+# its grid ("attention"), or refined to pixels by the mixture decoder's paint ("pixel":
+# block-stacking, whose places lie 3-3.5 pixels apart, under two of slot attention's cells;
+# docs/recipe.md, "Pixel masks")
+MASKS = "attention"
+MASKS_BY_ENV = {"block-stacking": "pixel"}
 # the task sets of an env's comparison (`reproduce baselines`) where they differ from
 # comparison.run_comparison's defaults (4-7 objects, complete and partial goals): block-stacking's
 # towers from 3 to 6 cubes, complete goals

@@ -28,8 +28,8 @@ from .envs import env_name, make
 from .envs.common import outside_action_space
 from .metrics import in_floor_slot, shared_with_another, slot_assignment
 from .ncs.graph import TransitionGraph
-from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, OraclePerception, acting_restarts,
-                             acting_slot_position, built_slot_position, scene_slots)
+from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, OraclePerception, acting_masks,
+                             acting_restarts, acting_slot_position, built_slot_position, scene_slots)
 from .ncs.policy import NCSAgent
 from .sweeps import run_sweep
 from .utils import atomic_write_text, check_file_env, progress, recorded_env
@@ -301,12 +301,12 @@ def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
     objects with: `scene_slots` slots (one per object plus `ncs.extra_slots`, the background's,
     at least the model's K; or exactly `ncs.slots`), and the restarts (`acting_restarts`),
-    iterations, kind of state and slot position of `ncs` (an `NCSConfig`, default the paper's
-    reading)."""
+    iterations, kind of state, slot position and masks of `ncs` (an `NCSConfig`, default the
+    paper's reading)."""
     ncs = ncs or NCSConfig()
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=scene_slots(model, num_objects, ncs),
                             restarts=acting_restarts(ncs, model), state=ncs.state,
-                            slot_position=acting_slot_position(ncs, model))
+                            slot_position=acting_slot_position(ncs, model), masks=acting_masks(ncs, model))
 
 
 def state_features(method: str, state: str, model=None) -> int | None:
@@ -323,9 +323,14 @@ def state_features(method: str, state: str, model=None) -> int | None:
 def check_graph_reading(graph, method: str, ncs, model=None) -> None:
     """ValueError unless the agent `method` with `ncs` reads states as `graph` was built on:
     the same kind and size of state (`TransitionGraph.check_state`) and, for a model's slot
-    states, the same `slot_position` (`built_slot_position`; a graph that does not say is
-    not checked)."""
+    states, the same `slot_position` (`built_slot_position`), and for a model's slots the same
+    masks (`acting_masks`; a graph that does not say is not checked)."""
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
+    if "masks" in graph.info and not method.endswith("oracle") and model is not None:
+        acting = acting_masks(ncs, model)
+        if acting != graph.info["masks"]:
+            raise ValueError(f"the graph was built on slots read with {graph.info['masks']!r} masks; "
+                             f"the agent would act with {acting!r} (set ncs.masks={graph.info['masks']})")
     built = built_slot_position(graph.info)
     if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
         acting = acting_slot_position(ncs, model)

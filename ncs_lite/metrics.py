@@ -17,7 +17,7 @@ from .data import cached_buffer, load_buffer
 from .envs.block_rearrange import COLOR_NAMES, PALETTE
 from .envs.objects import COLOUR_NAMES, COLOURS
 from .models.split import split
-from .ncs.perception import scene_slots
+from .ncs.perception import default_masks, scene_slots
 
 __all__ = ["HELDOUT_SEED", "adjusted_rand_index", "foreground_ari", "absorbed_by_background", "slot_assignment",
            "in_floor_slot", "shared_with_another", "lost_in_reconstruction", "heldout_images", "segmentation_scores",
@@ -191,23 +191,25 @@ def heldout_images(num_objects: int, images: int = 200, seed: int = 0, env: str 
 
 
 def segmentation_scores(model, num_objects: int, images: int = 200, restarts: int = 1,
-                        seed: int = 0, env: str = "block-rearrange") -> dict:
+                        seed: int = 0, env: str = "block-rearrange", masks: str | None = None) -> dict:
     """Held-out fg-ARI, the share of cubes absorbed into the floor's slot and the share that
     share a slot with another cube (`shared`; `pairs`: [colour pair, frames] of the pairs found
     sharing one, most first), on `heldout_images`, read with 7 iterations, `scene_slots` slots
-    (one per object plus one, at least the model's K) and `restarts` starts per image; with
+    (one per object plus one, at least the model's K) and `restarts` starts per image, its
+    `masks` (None: the model's env's, `default_masks`, as NCS reads them); with
     `absorbed_cubes` (n, k), which cubes of each image are in the floor's slot
     (`absorbed_by_background`). The segmentation measure of notebook 03 and the seeds table."""
     held = heldout_images(num_objects, images, seed, env)
-    frames, masks = held["frames"], held["masks"]
+    frames, truth = held["frames"], held["masks"]
     colours, names = _colour_ids(held["episode_colors"])                        # (E, k) per episode
     colours = np.repeat(colours, held["frames_per_episode"], axis=0)[:images]    # ... per frame
     slots = scene_slots(model, num_objects)
     aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts)
-        aris.append(foreground_ari(r.masks, masks[i:i + 50]))
-        owner, background = slot_assignment(r.masks, masks[i:i + 50])
+        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts,
+                        masks=masks or default_masks(model))
+        aris.append(foreground_ari(r.masks, truth[i:i + 50]))
+        owner, background = slot_assignment(r.masks, truth[i:i + 50])
         owners.append(owner)
         backgrounds.append(background)
     owner, background = np.concatenate(owners), np.concatenate(backgrounds)
@@ -291,7 +293,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
 
     Slots are inferred through each video (`infer_video`: slot k follows one object) with
     one slot per object plus one for the floor, at least the model's trained K (`scene_slots`,
-    as NCS's perception and `segmentation_scores` read a scene); object o's slot in a frame is the slot
+    as NCS's perception and `segmentation_scores` read a scene) and the model's env's masks
+    (`default_masks`); object o's slot in a frame is the slot
     winning most of its true pixels (`slot_assignment`). Returns arrays:
       slots (E, T, K, D), masks (E, T, K, H, W), owner (E, T, k) (-1: no pixels), z, s;
       per matched (episode, frame, object) row: episode, frame, object, types (n, Dz),
@@ -306,7 +309,8 @@ def matched_slots(model, buffer: dict, restarts: int = 1, seed: int = 0, batch_s
     num_slots = scene_slots(model, k)
     slots, masks = [], []
     for i in range(0, E, batch_size):
-        r = model.infer_video(frames[i:i + batch_size], num_slots=num_slots, restarts=restarts, seed=seed)
+        r = model.infer_video(frames[i:i + batch_size], num_slots=num_slots, restarts=restarts, seed=seed,
+                              masks=default_masks(model))
         slots.append(r.slots.cpu().float())
         masks.append(r.masks.cpu().float())
     slots, masks = torch.cat(slots), torch.cat(masks)                 # (E, T, K, D), (E, T, K, H, W)

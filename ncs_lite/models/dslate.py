@@ -47,7 +47,7 @@ from torch import nn
 from .decoder import TransformerDecoder
 from .dvae import DVAE, patchify, unpatchify
 from .dynamics import Dynamics
-from ..config import MIXTURE_ERRORS
+from ..config import MASK_READS, MIXTURE_ERRORS
 from .mixture_decoder import MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
@@ -65,6 +65,11 @@ LOSSES = ("loss", "mse", "ce", "ce_dyn", "mix", "mask", "latent")
 # RGB distance from the median colour above which a pixel counts as foreground in the
 # weighted losses: well below a cube's distance to the floor (anti-aliased edges are lower)
 FOREGROUND_DISTANCE = 0.1
+# the spread (RGB in [0, 1]) of a pixel's colour around what its slot paints there, in
+# `pixel_masks`: below the distance between two cubes' colours and between a cube's faces and
+# the floor, above the painting's error (block-stacking, fg-ARI at 4 cubes with one start:
+# 0.87 at 0.05, 0.89 at 0.1 and 0.2, 0.86 at 0.4; docs/HISTORY.md, "Pixel masks")
+PIXEL_MASK_SIGMA = 0.1
 
 
 def foreground(x: torch.Tensor) -> torch.Tensor:
@@ -237,22 +242,21 @@ class DSlate(nn.Module):
                              "which this model does not have")
         return self._with_position(states, self._won_cells(attention))
 
-    def base_states(self, states: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+    def base_states(self, states: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
         """states (..., K, Ds) with their position features replaced by where each slot's
         object stands in the image: the lowest row and the mean column of the pixels it wins
-        in its mask (`upsample_masks`: the masks NCS acts on), then two zeros where the
-        spread was (a slot that wins no pixel reads (0, 0, 0, 0), the prior's centre). A
-        camera that looks down at a slant draws an object's base where it touches what it
-        stands on, and that edge stays put when another object covers the object's top,
-        which moves the centroid of the visible part: block-stacking's places (cell, level)
-        are told apart by it (`ncs.slot_position` "base"; docs/recipe.md)."""
+        in its masks (..., K, H, W) (`SlotInference.masks`: the masks NCS acts on), then two
+        zeros where the spread was (a slot that wins no pixel reads (0, 0, 0, 0), the prior's
+        centre). A camera that looks down at a slant draws an object's base where it touches
+        what it stands on, and that edge stays put when another object covers the object's
+        top, which moves the centroid of the visible part: block-stacking's places (cell,
+        level) are told apart by it (`ncs.slot_position` "base"; docs/recipe.md)."""
         if not self.cfg.slots.position_state:
             raise ValueError("base_states reads the position features of slots.position_state, "
                              "which this model does not have")
-        lead, (K, N) = attention.shape[:-2], attention.shape[-2:]
-        masks = self.upsample_masks(attention.reshape(-1, K, N)).flatten(-2)      # (B', K, H*W)
-        won = self._won_cells(masks).reshape(*lead, K, -1)
-        coords = coordinate_grid(self.cfg.image_size).to(won)             # (H*W, 2) (row, col)
+        lead, (K, H, W) = masks.shape[:-3], masks.shape[-3:]
+        won = self._won_cells(masks.reshape(-1, K, H * W)).reshape(*lead, K, H * W)
+        coords = coordinate_grid(H).to(won)                                # (H*W, 2) (row, col)
         cells = won.sum(-1)                                                # (..., K)
         bottom = torch.where(won > 0, coords[:, 0], torch.full_like(won, -2.0)).amax(-1)
         bottom = torch.where(cells > 0, bottom, torch.zeros_like(bottom))
@@ -489,7 +493,8 @@ class DSlate(nn.Module):
 
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
-              init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1) -> SlotInference:
+              init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1,
+              masks: str = "attention") -> SlotInference:
         """Slots and masks of single images.
 
         images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations;
@@ -503,9 +508,14 @@ class DSlate(nn.Module):
         cube falls into the background slot, and a fresh start usually avoids it (why:
         docs/recipe.md, "How NCS reads a model"; the restarts NCS acts with:
         `ncs.perception.RESTARTS_BY_ENV`).
+
+        masks: "attention" = slot attention's, upsampled from its grid (`upsample_masks`);
+        "pixel" = refined to single pixels by what each slot paints (`pixel_masks`).
         """
         if not isinstance(restarts, int) or restarts < 1:
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
+        if masks not in MASK_READS:
+            raise ValueError(f"masks must be one of {', '.join(map(repr, MASK_READS))}, got {masks!r}")
         if init_slots is not None and restarts > 1:
             raise ValueError("restarts > 1 draws fresh initial slots; it cannot be combined with init_slots")
         with self._eval_mode():
@@ -527,8 +537,8 @@ class DSlate(nn.Module):
                 err = self.reconstruction_error(x.repeat(restarts, 1, 1, 1), slots, attn)
                 best = err.reshape(restarts, B).argmin(0) * B + torch.arange(B, device=self.device)
                 slots, attn = slots[best], attn[best]
-            masks = self.upsample_masks(attn)
-            return SlotInference(slots, *split(slots, self.type_dim), masks, attn)
+            read = self.upsample_masks(attn) if masks == "attention" else self.pixel_masks(x, slots, attn)
+            return SlotInference(slots, *split(slots, self.type_dim), read, attn)
 
     @torch.no_grad()
     def reconstruction_error(self, x: torch.Tensor, slots: torch.Tensor,
@@ -550,7 +560,7 @@ class DSlate(nn.Module):
 
     @torch.no_grad()
     def infer_video(self, videos, iterations: int | None = None, num_slots: int | None = None,
-                    seed: int = 0, restarts: int = 1) -> SlotInference:
+                    seed: int = 0, restarts: int = 1, masks: str = "attention") -> SlotInference:
         """Like `infer` for videos (B, T, H, W, 3): each frame starts from the previous frame's
         slots, so slot k tracks one object (`restarts` apply to the first frame).
         Outputs gain a T axis: slots (B, T, K, D), ..."""
@@ -559,7 +569,7 @@ class DSlate(nn.Module):
         out, prev = [], None
         for t in range(T):
             r = self.infer(videos[:, t], iterations, num_slots, init_slots=prev, seed=seed,
-                           restarts=restarts if prev is None else 1)
+                           restarts=restarts if prev is None else 1, masks=masks)
             out.append(r)
             prev = r.slots
         return SlotInference(*(torch.stack(x, 1) for x in zip(*out)))
@@ -571,6 +581,27 @@ class DSlate(nn.Module):
         g, S = self.cfg.mask_grid, self.cfg.image_size
         return F.interpolate(attn.reshape(B, K, g, g), size=(S, S), mode="bilinear",
                              align_corners=False)
+
+    @torch.no_grad()
+    def pixel_masks(self, x: torch.Tensor, slots: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+        """Masks (B, K, H, W) at the image's resolution, summing to 1 over K: each pixel of
+        x (B, H, W, 3) in [0, 1] shared among the slots (B, K, D) in proportion to their
+        upsampled attention (B, K, N') times how well the colour each paints there (the
+        mixture decoder, before mixing) explains the pixel's, a Gaussian of spread
+        PIXEL_MASK_SIGMA. This is the mixture's posterior of which slot drew each pixel, an
+        E-step on slot attention's masks, which are the prior: a slot-attention cell covers
+        several pixels, and an object's edge moves to the pixel where its colour ends. Reads
+        the image and the model only, no ground truth."""
+        if self.mixture is None:
+            raise ValueError("pixel masks read what the mixture decoder paints; this model has none "
+                             "(mixture.weight = 0): use masks 'attention'")
+        patches, _ = self.mixture.paint(slots.to(self.pos_emb.dtype), attention)   # (B, K, N|1, p*p*3)
+        B, K = slots.shape[:2]
+        g, S = self.mixture.grid, self.cfg.image_size
+        paint = unpatchify(patches.expand(B, K, g * g, -1).reshape(B * K, g * g, -1).float(), S // g, g)
+        distance = (paint.reshape(B, K, S, S, 3) - x[:, None].float()).pow(2).sum(-1)    # (B, K, H, W)
+        prior = self.upsample_masks(attention.float()).clamp(min=1e-6).log()
+        return torch.softmax(prior - distance / (2 * PIXEL_MASK_SIGMA ** 2), dim=1)
 
     @torch.no_grad()
     def predict(self, slots: torch.Tensor, actions) -> torch.Tensor:

@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import RESTARTS, RESTARTS_BY_ENV, SLOT_POSITION, SLOT_POSITION_BY_ENV, SLOT_POSITIONS, NCSConfig
+from ..config import (MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV, SLOT_POSITION,
+                      SLOT_POSITION_BY_ENV, SLOT_POSITIONS, NCSConfig)
 from ..data import load_buffer
 from ..workers import map_jobs
 
@@ -37,6 +38,20 @@ def acting_restarts(ncs, model) -> int:
     if ncs.restarts is not None:
         return ncs.restarts
     return RESTARTS_BY_ENV.get(model_env(model), RESTARTS)
+
+
+def acting_masks(ncs, model) -> str:
+    """The masks an agent reads a model's slots with: `ncs.masks`, or when it is None those of
+    the env the model was trained on (`default_masks`)."""
+    return ncs.masks or default_masks(model)
+
+
+def default_masks(model) -> str:
+    """The masks of the env the model was trained on (MASKS_BY_ENV), when the model paints
+    what pixel masks need (slot attention's otherwise)."""
+    if getattr(model, "mixture", None) is None:
+        return "attention"
+    return MASKS_BY_ENV.get(model_env(model), MASKS)
 
 
 def acting_slot_position(ncs, model) -> str:
@@ -175,7 +190,8 @@ class DSlatePerception:
     type = z (the action-invariant half of the slot); state = the slot-attention mask pooled
     to the 16x16 state grid like the oracle's (block-rearrange, Table 3) or the state half s
     of the slot ("slot"), its position features read as `slot_position` says (SLOT_POSITIONS;
-    None: `default_slot_position`).
+    None: `default_slot_position`); every mask, and the "base" read, from the `masks` it
+    names (MASK_READS; None: `default_masks`).
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background. `restarts`
     initial slot samples per image, the best reconstructed kept (`DSlate.infer`); the
@@ -187,9 +203,14 @@ class DSlatePerception:
 
     def __init__(self, model, iterations: int = 7, num_slots: int | None = None,
                  state: str = "mask", batch_size: int = 64, restarts: int = RESTARTS,
-                 slot_position: str | None = None):
+                 slot_position: str | None = None, masks: str | None = None):
         if state not in ("mask", "slot"):
             raise ValueError(f"state must be 'mask' or 'slot', got {state!r}")
+        masks = masks or default_masks(model)
+        if masks not in MASK_READS:
+            raise ValueError(f"masks must be one of {', '.join(map(repr, MASK_READS))}, got {masks!r}")
+        if masks == "pixel" and model.mixture is None:
+            raise ValueError("masks 'pixel' read what the mixture decoder paints; this model has none (use 'attention')")
         slot_position = slot_position or default_slot_position(model)
         if slot_position not in SLOT_POSITIONS:
             raise ValueError(f"slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))}, "
@@ -198,7 +219,7 @@ class DSlatePerception:
             raise ValueError(f"slot_position {slot_position!r} reads slots.position_state's features; "
                              "this model has none (use 'attention')")
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
-        self.restarts, self.slot_position = restarts, slot_position
+        self.restarts, self.slot_position, self.masks = restarts, slot_position, masks
         self.state, self.batch_size = state, batch_size
 
     @property
@@ -208,7 +229,7 @@ class DSlatePerception:
 
     def _entities(self, image) -> Entities:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots,
-                             restarts=self.restarts)
+                             restarts=self.restarts, masks=self.masks)
         masks = r.masks[0].cpu().float()                               # (K, H, W), the kept restart
         states = pool_masks(masks) if self.state == "mask" else _slot_states(self.model, r, self.slot_position)[0]
         return Entities(r.types[0].cpu().float(), states, masks)
@@ -233,7 +254,7 @@ class DSlatePerception:
         # each batch is seeded alone: worker processes give the loop's result
         done = map_jobs(_infer_videos, batches, desc="slot inference",
                         shared=(self.model, self.iterations, self.num_slots, self.restarts, self.state,
-                                self.slot_position))
+                                self.slot_position, self.masks))
         masks = torch.cat([m for m, _ in done])                          # (E, T, K, N)
         states = torch.cat([s for _, s in done])                         # (E, T, K, D)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
@@ -249,6 +270,7 @@ class DSlatePerception:
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
                 "slot_position": self.slot_position if self.state == "slot" else None,   # masks: unread
+                "masks": self.masks,
                 "batch_size": self.batch_size, "grid": STATE_GRID}
 
 
@@ -260,16 +282,16 @@ def graph_perception(ncs, model=None, num_slots: int | None = None):
     if model is None:
         return OraclePerception(ORACLE_STATES[ncs.state])
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=num_slots, restarts=ncs.graph_restarts,
-                            state=ncs.state, slot_position=ncs.slot_position)
+                            state=ncs.state, slot_position=ncs.slot_position, masks=ncs.masks)
 
 
 def slot_read(perception) -> dict:
-    """What a graph built from `perception` records of how it read slot states, so an agent
-    that reads them another way is refused (`evaluation.check_graph_reading`): {} unless
-    learned slot states."""
-    if getattr(perception, "reads_ground_truth", True) or perception.state != "slot":
+    """What a graph built from `perception` records of how it read slots, so an agent that
+    reads them another way is refused (`evaluation.check_graph_reading`): the masks, and for
+    slot states the slot position; {} for ground truth."""
+    if getattr(perception, "reads_ground_truth", True):
         return {}
-    return {"slot_position": perception.slot_position}
+    return {"masks": perception.masks, **({"slot_position": perception.slot_position} if perception.state == "slot" else {})}
 
 
 def built_slot_position(info: dict) -> str | None:
@@ -284,8 +306,8 @@ def built_slot_position(info: dict) -> str | None:
 
 def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
     """Pooled masks and states of a batch of videos (a job of `DSlatePerception.transitions`)."""
-    model, iterations, num_slots, restarts, state, slot_position = spec
-    r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts)
+    model, iterations, num_slots, restarts, state, slot_position, masks = spec
+    r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts, masks=masks)
     pooled = pool_masks(r.masks).cpu().float()
     return pooled, (pooled if state == "mask" else _slot_states(model, r, slot_position))
 
@@ -293,7 +315,7 @@ def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
 def _slot_states(model, r, slot_position: str) -> torch.Tensor:
     """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says."""
     reads = {"attention": lambda states, attention: states, "assigned": model.assigned_states,
-             "base": model.base_states}
+             "base": lambda states, attention: model.base_states(states, r.masks)}
     return reads[slot_position](r.states, r.attention).cpu().float()
 
 

@@ -277,6 +277,41 @@ def test_restarts_keep_the_best_reconstruction_per_image(mixture):
         m.infer(images, restarts=2, init_slots=best.slots)
 
 
+def test_pixel_masks_move_an_edge_to_the_pixel_where_its_colour_ends():
+    """masks "pixel": each pixel goes to the slot whose attention and painted colour explain it
+    (the mixture's posterior, `DSlate.pixel_masks`). A red square whose edges fall inside
+    slot attention's 2-pixel cells is given back pixel for pixel where the attention's
+    upsampled masks blur it; where two slots paint the same colour, the attention decides.
+    A model without the mixture decoder, or an unknown read, is refused."""
+    torch.manual_seed(0)
+    m = DSlate(tiny_cfg()).eval()
+    g, S = m.cfg.mask_grid, m.cfg.image_size
+    grey, red = torch.tensor([0.3, 0.3, 0.3]), torch.tensor([0.8, 0.1, 0.1])
+    x = grey.expand(1, S, S, 3).clone()
+    x[0, 9:21, 5:17] = red                                    # rows 9-20, columns 5-16: odd edges
+    attn = torch.full((1, 2, g, g), 1e-3)
+    attn[0, 0] = 1.0
+    attn[0, 0, 4:11, 2:9], attn[0, 1, 4:11, 2:9] = 1e-3, 1.0  # cells cover pixels 8-21, 4-17
+    attn = attn.flatten(2) / attn.flatten(2).sum(1, keepdim=True)
+    look = torch.stack([grey, red]).repeat(1, (S // g) ** 2)  # each slot paints one colour
+    m.mixture.paint = lambda slots, attention: (look[None, :, None], attention)
+    slots = torch.zeros(1, 2, m.slot_dim)
+    masks = m.pixel_masks(x, slots, attn)
+    assert masks.shape == (1, 2, S, S)
+    torch.testing.assert_close(masks.sum(1), torch.ones(1, S, S))
+    truth = (x[0] - red).abs().sum(-1) < 1e-6
+    assert torch.equal(masks[0].argmax(0) == 1, truth)
+    assert not torch.equal(m.upsample_masks(attn)[0].argmax(0) == 1, truth)
+    look[1] = look[0]                                          # the same paint: the prior alone
+    torch.testing.assert_close(m.pixel_masks(x, slots, attn), m.upsample_masks(attn))
+    with pytest.raises(ValueError, match="masks must be one of 'attention', 'pixel', got 'edges'"):
+        m.infer(videos(B=1, T=1)[0][:, 0], masks="edges")
+    plain = tiny_cfg()
+    plain.mixture.weight = 0.0
+    with pytest.raises(ValueError, match="this model has none"):
+        DSlate(plain).pixel_masks(x, slots, attn)
+
+
 def test_mixture_error_weights_pixels_far_from_the_median_colour():
     torch.manual_seed(0)
     cfg = tiny_cfg()

@@ -5,7 +5,7 @@ import torch
 
 from ncs_lite.config import NCSConfig
 from ncs_lite.data import collect, load_buffer
-from ncs_lite.evaluation import (TaskSet, agent_factory, evaluate, summarize, task_seed,
+from ncs_lite.evaluation import (TaskSet, agent_factory, check_graph_reading, evaluate, summarize, task_seed,
                                  wilson_interval, write_csv)
 from ncs_lite.ncs.graph import TransitionGraph, build_graph, graph_from_buffer, isolate
 from ncs_lite.ncs.perception import OraclePerception, pool_masks
@@ -725,7 +725,7 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
 
 def test_base_slot_states_read_where_each_slot_stands(tmp_path):
     """`slot_position` "base": the lowest row and the mean column of the pixels a slot wins in
-    its upsampled mask, then zeros; a slot that wins none reads zeros. The base does not move
+    its mask, then zeros; a slot that wins none reads zeros. The base does not move
     when the top of an object's region is taken by another slot (a cube put on it), where
     the centroid does. Block-stacking models read this way, graphs with as many slots as
     their agents (one per object plus the floor's)."""
@@ -741,7 +741,7 @@ def test_base_slot_states_read_where_each_slot_stands(tmp_path):
     attn[0, 1, 8:16, 4:12] = 1.0                         # slot 1: a cube, rows 8-15, columns 4-11
     attn = attn.flatten(2)
     states = torch.randn(1, 3, model.cfg.slots.state_dim)
-    got = model.base_states(states, attn)
+    got = model.base_states(states, model.upsample_masks(attn))
     won = model.upsample_masks(attn)[0].argmax(0) == 1                  # (S, S) the cube's pixels
     rows, cols = torch.nonzero(won, as_tuple=True)
     to_unit = lambda i: (i.float() + 0.5) / S * 2 - 1                   # noqa: E731 (pixel centre in [-1, 1])
@@ -752,14 +752,43 @@ def test_base_slot_states_read_where_each_slot_stands(tmp_path):
     covered = attn.reshape(1, 3, g, g).clone()
     covered[0, 2, 8:11, 4:12], covered[0, 1, 8:11, 4:12] = 1.0, 0.0    # a cube on top takes its upper rows
     covered = covered.flatten(2)
-    torch.testing.assert_close(model.base_states(states, covered)[0, 1, :-3], got[0, 1, :-3])   # same base
+    torch.testing.assert_close(model.base_states(states, model.upsample_masks(covered))[0, 1, :-3],
+                               got[0, 1, :-3])                          # same base
     assert not torch.allclose(model.assigned_states(states, covered)[0, 1, -4], model.assigned_states(states, attn)[0, 1, -4])
     model.checkpoint_info = {"env": "block-stacking"}
     read = learned_perception(model, 1, NCSConfig(state="slot"))
-    assert (read.slot_position, read.num_slots) == ("base", 2)
+    assert (read.slot_position, read.num_slots, read.masks) == ("base", 2, "pixel")
     collect(tmp_path / "buf", episodes=2, seed=0, env="block-stacking", num_objects=1)
     graph = graph_from_buffer(NCSConfig(clusters=2, state="slot", iterations=2, graph_restarts=1), model, tmp_path / "buf")
     assert (graph.info["slot_position"], graph.info["read_slots"], graph.edge_action) == ("base", 2, "nearest")
+    assert graph.info["masks"] == "pixel"
+    check_graph_reading(graph, "ncs", NCSConfig(state="slot"), model)
+    with pytest.raises(ValueError, match="built on slots read with 'pixel' masks; the agent would act with "
+                                         "'attention' \\(set ncs.masks=pixel\\)"):
+        check_graph_reading(graph, "ncs", NCSConfig(state="slot", masks="attention"), model)
+
+
+def test_masks_default_to_the_models_env():
+    """`ncs.masks` None reads block-stacking models with pixel masks and every other env's,
+    and any model without the mixture decoder, with slot attention's; a bad value is refused."""
+    from ncs_lite.config import NCSConfig, get_preset
+    from ncs_lite.models import DSlate
+    from ncs_lite.ncs.perception import DSlatePerception, acting_masks
+
+    model = DSlate(get_preset("ci")).eval()
+    for env, read in (("block-stacking", "pixel"), ("block-rearrange", "attention"), ("robogym-rearrange", "attention")):
+        model.checkpoint_info = {"env": env}
+        assert acting_masks(NCSConfig(), model) == read
+        assert acting_masks(NCSConfig(masks="attention"), model) == "attention"
+    cfg = get_preset("ci")
+    cfg.mixture.weight = 0.0
+    plain = DSlate(cfg).eval()
+    plain.checkpoint_info = {"env": "block-stacking"}
+    assert acting_masks(NCSConfig(), plain) == "attention"
+    with pytest.raises(ValueError, match="masks 'pixel' read what the mixture decoder paints; this model has none"):
+        DSlatePerception(plain, masks="pixel")
+    with pytest.raises(ValueError, match="ncs.masks must be one of 'attention', 'pixel' or None \\(the env's\\), got 'edge'"):
+        NCSConfig(masks="edge").validate()
 
 
 def test_step_trace_classifies_every_step_and_names_the_selected_object(oracle_graph):
