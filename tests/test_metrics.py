@@ -33,7 +33,7 @@ class GroundTruthModel:
         self.rng = np.random.default_rng(0)
         self.by_frame = {buffer["frames"][e, 0].tobytes(): e for e in range(len(buffer["frames"]))}
 
-    def infer_video(self, videos, num_slots=None, restarts=1, seed=0):
+    def infer_video(self, videos, num_slots=None, restarts=1, seed=0, masks="attention"):
         b = self.buffer
         eps = [self.by_frame[np.asarray(v[0]).tobytes()] for v in videos]
         colours = torch.as_tensor(b["colors"][eps]).float()                   # (B, k, 3)
@@ -88,7 +88,7 @@ def test_objects_sharing_a_slot_leave_the_own_slot_score(buffer):
     class Merged(GroundTruthModel):
         """Objects 0 and 1 share slot 0 (slot 1 is empty): their state is a blend."""
 
-        def infer_video(self, videos, num_slots=None, restarts=1, seed=0):
+        def infer_video(self, videos, num_slots=None, restarts=1, seed=0, masks="attention"):
             r = super().infer_video(videos, num_slots, restarts, seed)
             masks = r.masks.clone()
             masks[:, :, 0] += masks[:, :, 1]
@@ -151,7 +151,7 @@ def test_segmentation_scores_count_cubes_that_share_a_slot_and_name_their_colour
     class MergesTheFirstTwo:               # true masks, but cubes 0 and 1 in one slot
         cfg = SimpleNamespace(slots=SimpleNamespace(num_slots=4, eval_iterations=7))
 
-        def infer(self, images, iterations, num_slots, restarts):
+        def infer(self, images, iterations, num_slots, restarts, masks):
             m = torch.as_tensor(true[[by_frame[np.asarray(x).tobytes()] for x in images]])
             floor = 1 - m.sum(1, keepdim=True).clamp(max=1)
             masks = torch.cat([m[:, :1] + m[:, 1:2], torch.zeros_like(m[:, :1]), m[:, 2:], floor], 1)
