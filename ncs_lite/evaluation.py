@@ -326,13 +326,14 @@ def check_graph_reading(graph, method: str, ncs, model=None) -> None:
     states, the same `slot_position` (`built_slot_position`), and for a model's slots the same
     masks (`acting_masks`; a graph that does not say is not checked)."""
     graph.check_state(ncs.state, state_features(method, ncs.state, model))
-    if "masks" in graph.info and not method.endswith("oracle") and model is not None:
+    learned = not method.endswith("oracle") and model is not None
+    if learned and "masks" in graph.info:
         acting = acting_masks(ncs, model)
         if acting != graph.info["masks"]:
             raise ValueError(f"the graph was built on slots read with {graph.info['masks']!r} masks; "
                              f"the agent would act with {acting!r} (set ncs.masks={graph.info['masks']})")
     built = built_slot_position(graph.info)
-    if ncs.state == "slot" and built and not method.endswith("oracle") and model is not None:
+    if learned and ncs.state == "slot" and built:
         acting = acting_slot_position(ncs, model)
         if acting != built:
             raise ValueError(f"the graph was built on slot states read with slot_position {built!r}; "

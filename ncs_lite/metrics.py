@@ -203,11 +203,10 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     frames, truth = held["frames"], held["masks"]
     colours, names = _colour_ids(held["episode_colors"])                        # (E, k) per episode
     colours = np.repeat(colours, held["frames_per_episode"], axis=0)[:images]    # ... per frame
-    slots = scene_slots(model, num_objects)
+    slots, masks = scene_slots(model, num_objects), masks or default_masks(model)
     aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
-        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts,
-                        masks=masks or default_masks(model))
+        r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts, masks=masks)
         aris.append(foreground_ari(r.masks, truth[i:i + 50]))
         owner, background = slot_assignment(r.masks, truth[i:i + 50])
         owners.append(owner)

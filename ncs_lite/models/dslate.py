@@ -68,7 +68,7 @@ FOREGROUND_DISTANCE = 0.1
 # the spread (RGB in [0, 1]) of a pixel's colour around what its slot paints there, in
 # `pixel_masks`: below the distance between two cubes' colours and between a cube's faces and
 # the floor, above the painting's error (block-stacking, fg-ARI at 4 cubes with one start:
-# 0.87 at 0.05, 0.89 at 0.1 and 0.2, 0.86 at 0.4; docs/HISTORY.md, "block-stacking: pixel masks")
+# 0.87 at 0.05, 0.89 at 0.1, 0.90 at 0.2, 0.86 at 0.4; docs/HISTORY.md, "block-stacking: pixel masks")
 PIXEL_MASK_SIGMA = 0.1
 
 

@@ -269,7 +269,7 @@ class DSlatePerception:
         """What this perception's output depends on (a cache key, `buffer_transitions`)."""
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
-                "slot_position": self.slot_position if self.state == "slot" else None,   # masks: unread
+                "slot_position": self.slot_position if self.state == "slot" else None,   # unread for mask states
                 "masks": self.masks,
                 "batch_size": self.batch_size, "grid": STATE_GRID}
 
@@ -291,7 +291,10 @@ def slot_read(perception) -> dict:
     slot states the slot position; {} for ground truth."""
     if getattr(perception, "reads_ground_truth", True):
         return {}
-    return {"masks": perception.masks, **({"slot_position": perception.slot_position} if perception.state == "slot" else {})}
+    read = {"masks": perception.masks}
+    if perception.state == "slot":
+        read["slot_position"] = perception.slot_position
+    return read
 
 
 def built_slot_position(info: dict) -> str | None:
@@ -313,10 +316,16 @@ def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _slot_states(model, r, slot_position: str) -> torch.Tensor:
-    """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says."""
-    reads = {"attention": lambda states, attention: states, "assigned": model.assigned_states,
-             "base": lambda states, attention: model.base_states(states, r.masks)}
-    return reads[slot_position](r.states, r.attention).cpu().float()
+    """The slot states (..., K, Ds) of a `SlotInference`, read as `slot_position` says: the
+    model's s, or its position read from the attention cells ("assigned") or from the masks
+    ("base") each slot wins."""
+    if slot_position == "assigned":
+        states = model.assigned_states(r.states, r.attention)
+    elif slot_position == "base":
+        states = model.base_states(r.states, r.masks)
+    else:
+        states = r.states
+    return states.cpu().float()
 
 
 # code the transitions of a buffer depend on (besides the buffer and the perception's settings)
