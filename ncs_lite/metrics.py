@@ -203,7 +203,8 @@ def segmentation_scores(model, num_objects: int, images: int = 200, restarts: in
     frames, truth = held["frames"], held["masks"]
     colours, names = _colour_ids(held["episode_colors"])                        # (E, k) per episode
     colours = np.repeat(colours, held["frames_per_episode"], axis=0)[:images]    # ... per frame
-    slots, masks = scene_slots(model, num_objects), masks or default_masks(model)
+    slots = scene_slots(model, num_objects)
+    masks = masks or default_masks(model)
     aris, owners, backgrounds = [], [], []
     for i in range(0, len(frames), 50):
         r = model.infer(frames[i:i + 50], iterations=7, num_slots=slots, restarts=restarts, masks=masks)
