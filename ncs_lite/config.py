@@ -36,6 +36,7 @@ PolishLoss = Literal["slate", "mixture"]          # TrainConfig.polish_loss (tra
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
 SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
 MaskRead = Literal["attention", "pixel"]          # NCSConfig.masks (DSlate.infer)
+SlotInit = Literal["random", "farthest"]          # NCSConfig.slot_init (DSlate.infer)
 AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
 EdgeAction = Literal["most_common", "nearest", "compose", "readout"]   # NCSConfig.edge_action (ncs/graph.py)
 MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
@@ -46,6 +47,7 @@ POLISH_LOSSES = typing.get_args(PolishLoss)
 ENTITY_STATES = typing.get_args(EntityState)
 SLOT_POSITIONS = typing.get_args(SlotPosition)
 MASK_READS = typing.get_args(MaskRead)
+SLOT_INITS = typing.get_args(SlotInit)
 ALIGN_RULES = typing.get_args(AlignRule)
 EDGE_ACTIONS = typing.get_args(EdgeAction)
 
@@ -422,6 +424,9 @@ class NCSConfig:
     #                             (DSlatePerception); None = the model's env's (ncs.perception.
     #                             RESTARTS_BY_ENV). why: docs/recipe.md, "How NCS reads a model"
     graph_restarts: int = 8     # ... per frame when `graph` and `graph-nf` read the buffer's videos
+    slot_init: SlotInit = "random"  # where an agent's first start begins: "random" (a draw from the
+    #                             learned Gaussian, the paper's) or "farthest" (seeded on the scene:
+    #                             SlotAttention.farthest_point_slots); the other restarts are random
     iterations: int = 7         # slot-attention iterations when reading entities (Table 2)
     extra_slots: int = 1        # slots = objects + this (one for the floor), at least the trained K
     slots: int | None = None    # slots an agent reads every scene with, whatever its object count
@@ -471,6 +476,8 @@ class NCSConfig:
         if self.slot_position is not None and self.slot_position not in SLOT_POSITIONS:
             raise ValueError(f"ncs.slot_position must be one of {', '.join(map(repr, SLOT_POSITIONS))} "
                              f"or None (the env's), got {self.slot_position!r}")
+        if self.slot_init not in SLOT_INITS:
+            raise ValueError(f"ncs.slot_init must be one of {', '.join(map(repr, SLOT_INITS))}, got {self.slot_init!r}")
         if self.masks is not None and self.masks not in MASK_READS:
             raise ValueError(f"ncs.masks must be one of {', '.join(map(repr, MASK_READS))} "
                              f"or None (the env's), got {self.masks!r}")

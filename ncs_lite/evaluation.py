@@ -301,12 +301,13 @@ def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
     objects with: `scene_slots` slots (one per object plus `ncs.extra_slots`, the background's,
     at least the model's K; or exactly `ncs.slots`), and the restarts (`acting_restarts`),
-    iterations, kind of state, slot position and masks of `ncs` (an `NCSConfig`, default the
-    paper's reading)."""
+    iterations, first start (`slot_init`), kind of state, slot position and masks of `ncs` (an
+    `NCSConfig`, default the paper's reading)."""
     ncs = ncs or NCSConfig()
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=scene_slots(model, num_objects, ncs),
                             restarts=acting_restarts(ncs, model), state=ncs.state,
-                            slot_position=acting_slot_position(ncs, model), masks=acting_masks(ncs, model))
+                            slot_position=acting_slot_position(ncs, model), masks=acting_masks(ncs, model),
+                            slot_init=ncs.slot_init)
 
 
 def state_features(method: str, state: str, model=None) -> int | None:

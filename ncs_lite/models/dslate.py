@@ -47,7 +47,7 @@ from torch import nn
 from .decoder import TransformerDecoder
 from .dvae import DVAE, patchify, unpatchify
 from .dynamics import Dynamics
-from ..config import MASK_READS, MIXTURE_ERRORS
+from ..config import MASK_READS, MIXTURE_ERRORS, SLOT_INITS
 from .mixture_decoder import MixtureDecoder
 from .pixel_encoder import PixelEncoder
 from .positional import sinusoid_2d
@@ -494,7 +494,7 @@ class DSlate(nn.Module):
     @torch.no_grad()
     def infer(self, images, iterations: int | None = None, num_slots: int | None = None,
               init_slots: torch.Tensor | None = None, seed: int = 0, restarts: int = 1,
-              masks: str = "attention") -> SlotInference:
+              masks: str = "attention", slot_init: str = "random") -> SlotInference:
         """Slots and masks of single images.
 
         images (B, H, W, 3) uint8; iterations defaults to the config's eval_iterations;
@@ -511,11 +511,17 @@ class DSlate(nn.Module):
 
         masks: "attention" = slot attention's, upsampled from its grid (`upsample_masks`);
         "pixel" = refined to single pixels by what each slot paints (`pixel_masks`).
+
+        slot_init: where the first restart begins without `init_slots`: "random" (a draw from
+        the learned Gaussian) or "farthest" (`SlotAttention.farthest_point_slots`, seeded on
+        the image); the other restarts are drawn.
         """
         if not isinstance(restarts, int) or restarts < 1:
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
         if masks not in MASK_READS:
             raise ValueError(f"masks must be one of {', '.join(map(repr, MASK_READS))}, got {masks!r}")
+        if slot_init not in SLOT_INITS:
+            raise ValueError(f"slot_init must be one of {', '.join(map(repr, SLOT_INITS))}, got {slot_init!r}")
         if init_slots is not None and restarts > 1:
             raise ValueError("restarts > 1 draws fresh initial slots; it cannot be combined with init_slots")
         with self._eval_mode():
@@ -527,6 +533,9 @@ class DSlate(nn.Module):
             if init_slots is not None and tuple(init_slots.shape[::2]) != (B, self.slot_dim):
                 raise ValueError(f"init_slots must have shape (B={B}, K, D={self.slot_dim}), "
                                  f"got {tuple(init_slots.shape)}")
+            if init_slots is None and slot_init == "farthest":
+                drawn = self.slot_attn.initial_slots(B * (restarts - 1), num_slots, gen)
+                init_slots = torch.cat([self.slot_attn.farthest_point_slots(inp, num_slots), drawn])
             # all restarts in one batch: row r * B + b is restart r of image b
             slots, attn = self._inputs_to_slots(
                 inp.repeat(restarts, 1, 1), 1, init_slots=init_slots,
@@ -560,16 +569,17 @@ class DSlate(nn.Module):
 
     @torch.no_grad()
     def infer_video(self, videos, iterations: int | None = None, num_slots: int | None = None,
-                    seed: int = 0, restarts: int = 1, masks: str = "attention") -> SlotInference:
+                    seed: int = 0, restarts: int = 1, masks: str = "attention",
+                    slot_init: str = "random") -> SlotInference:
         """Like `infer` for videos (B, T, H, W, 3): each frame starts from the previous frame's
-        slots, so slot k tracks one object (`restarts` apply to the first frame).
+        slots, so slot k tracks one object (`restarts` and `slot_init` apply to the first frame).
         Outputs gain a T axis: slots (B, T, K, D), ..."""
         videos = self._check_images(videos, 5, "videos")
         B, T = videos.shape[:2]
         out, prev = [], None
         for t in range(T):
             r = self.infer(videos[:, t], iterations, num_slots, init_slots=prev, seed=seed,
-                           restarts=restarts if prev is None else 1, masks=masks)
+                           restarts=restarts if prev is None else 1, masks=masks, slot_init=slot_init)
             out.append(r)
             prev = r.slots
         return SlotInference(*(torch.stack(x, 1) for x in zip(*out)))

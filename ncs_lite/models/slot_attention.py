@@ -18,6 +18,9 @@ implicit differentiation through slot attention's fixed point (Chang, Griffiths 
 following the unrolled iterations' unstable gradients. The slots and attention it returns
 are the same numbers as without it; the initial Gaussian then gets no gradient.
 
+`farthest_point_slots` reads initial slots from the scene instead of sampling them, so that
+one pass of slot attention starts from distinct regions (DSlate.infer, `slot_init`).
+
 Shapes: inputs (B, N, Din); slots (B, K, D); attention (B, K, N).
 """
 from __future__ import annotations
@@ -59,6 +62,32 @@ class SlotAttention(nn.Module):
         eps = torch.randn(batch, k, self.slot_dim, generator=generator, device=self.mu.device,
                           dtype=self.mu.dtype)
         return self.mu + self.log_sigma.exp() * eps
+
+    @torch.no_grad()
+    def farthest_point_slots(self, inputs: torch.Tensor, num_slots: int | None = None) -> torch.Tensor:
+        """Initial slots (B, K, D) read from the inputs (B, N, Din) instead of drawn.
+
+        K seeds by farthest-point sampling on the values: the first the value farthest from
+        their mean, each next the value farthest from every seed so far. Each input goes to
+        its nearest seed, and each slot takes one update from the learned mean `mu`, with that
+        hard partition in place of the softmax. Slot attention is a soft k-means, and as
+        k-means++ seeds k-means this starts it from K distinct parts of the scene rather than
+        K random draws that can settle on one object together. Deterministic; it reads the
+        image only and trains nothing."""
+        B = inputs.shape[0]
+        K = num_slots or self.num_slots
+        _, v = self.to_kv(self.norm_inputs(inputs)).chunk(2, dim=-1)          # (B, N, D)
+        rows = torch.arange(B, device=v.device)
+        far = (v - v.mean(1, keepdim=True)).pow(2).sum(-1)                     # (B, N)
+        seeds = []
+        for k in range(K):
+            seeds.append(v[rows, far.argmax(1)])                               # (B, D)
+            to_seed = (v - seeds[-1][:, None]).pow(2).sum(-1)
+            far = to_seed if k == 0 else torch.minimum(far, to_seed)
+        part = F.one_hot(torch.cdist(v, torch.stack(seeds, 1)).argmin(-1), K).transpose(1, 2).to(v.dtype)
+        updates = part @ v / part.sum(-1, keepdim=True).clamp(min=1)          # (B, K, D)
+        new = self.gru(updates.reshape(B * K, -1), self.mu.reshape(1, -1).expand(B * K, -1)).reshape(B, K, -1)
+        return new + self.mlp(new)
 
     def forward(self, inputs: torch.Tensor, init_slots: torch.Tensor | None = None,
                 iterations: int | None = None, num_slots: int | None = None,

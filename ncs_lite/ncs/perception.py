@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import (MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV, SLOT_POSITION,
+from ..config import (MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV, SLOT_INITS, SLOT_POSITION,
                       SLOT_POSITION_BY_ENV, SLOT_POSITIONS, NCSConfig)
 from ..data import load_buffer
 from ..workers import map_jobs
@@ -194,8 +194,9 @@ class DSlatePerception:
     names (MASK_READS; None: `default_masks`).
     `num_slots` may exceed the trained K: slot attention runs with any number of slots, and
     a scene needs at least one slot per object plus one for the background. `restarts`
-    initial slot samples per image, the best reconstructed kept (`DSlate.infer`); the
-    entities, masks included, are those of the kept restart. Inference is seeded, so the
+    initial slot samples per image, the best reconstructed kept (`DSlate.infer`), the first
+    of them begun where `slot_init` says (SLOT_INITS); the entities, masks included, are
+    those of the kept restart. Inference is seeded, so the
     same image always gives the same entities.
     """
 
@@ -203,9 +204,11 @@ class DSlatePerception:
 
     def __init__(self, model, iterations: int = 7, num_slots: int | None = None,
                  state: str = "mask", batch_size: int = 64, restarts: int = RESTARTS,
-                 slot_position: str | None = None, masks: str | None = None):
+                 slot_position: str | None = None, masks: str | None = None, slot_init: str = "random"):
         if state not in ("mask", "slot"):
             raise ValueError(f"state must be 'mask' or 'slot', got {state!r}")
+        if slot_init not in SLOT_INITS:
+            raise ValueError(f"slot_init must be one of {', '.join(map(repr, SLOT_INITS))}, got {slot_init!r}")
         masks = masks or default_masks(model)
         if masks not in MASK_READS:
             raise ValueError(f"masks must be one of {', '.join(map(repr, MASK_READS))}, got {masks!r}")
@@ -220,7 +223,7 @@ class DSlatePerception:
                              "this model has none (use 'attention')")
         self.model, self.iterations, self.num_slots = model, iterations, num_slots
         self.restarts, self.slot_position, self.masks = restarts, slot_position, masks
-        self.state, self.batch_size = state, batch_size
+        self.state, self.batch_size, self.slot_init = state, batch_size, slot_init
 
     @property
     def graph_state(self) -> str:
@@ -229,7 +232,7 @@ class DSlatePerception:
 
     def _entities(self, image) -> Entities:
         r = self.model.infer(np.asarray(image)[None], iterations=self.iterations, num_slots=self.num_slots,
-                             restarts=self.restarts, masks=self.masks)
+                             restarts=self.restarts, masks=self.masks, slot_init=self.slot_init)
         masks = r.masks[0].cpu().float()                               # (K, H, W), the kept restart
         states = pool_masks(masks) if self.state == "mask" else _slot_states(self.model, r, self.slot_position)[0]
         return Entities(r.types[0].cpu().float(), states, masks)
@@ -254,7 +257,7 @@ class DSlatePerception:
         # each batch is seeded alone: worker processes give the loop's result
         done = map_jobs(_infer_videos, batches, desc="slot inference",
                         shared=(self.model, self.iterations, self.num_slots, self.restarts, self.state,
-                                self.slot_position, self.masks))
+                                self.slot_position, self.masks, self.slot_init))
         masks = torch.cat([m for m, _ in done])                          # (E, T, K, N)
         states = torch.cat([s for _, s in done])                         # (E, T, K, D)
         gt = pool_masks(buffer["masks"])                               # (E, T, k, N)
@@ -270,7 +273,7 @@ class DSlatePerception:
         return {"perception": "dslate", "model": digest(self.model), "iterations": self.iterations,
                 "num_slots": self.num_slots, "state": self.state, "restarts": self.restarts,
                 "slot_position": self.slot_position if self.state == "slot" else None,   # unread for mask states
-                "masks": self.masks,
+                "masks": self.masks, "slot_init": self.slot_init,
                 "batch_size": self.batch_size, "grid": STATE_GRID}
 
 
@@ -282,7 +285,8 @@ def graph_perception(ncs, model=None, num_slots: int | None = None):
     if model is None:
         return OraclePerception(ORACLE_STATES[ncs.state])
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=num_slots, restarts=ncs.graph_restarts,
-                            state=ncs.state, slot_position=ncs.slot_position, masks=ncs.masks)
+                            state=ncs.state, slot_position=ncs.slot_position, masks=ncs.masks,
+                            slot_init=ncs.slot_init)
 
 
 def slot_read(perception) -> dict:
@@ -309,8 +313,9 @@ def built_slot_position(info: dict) -> str | None:
 
 def _infer_videos(spec: tuple, videos) -> tuple[torch.Tensor, torch.Tensor]:
     """Pooled masks and states of a batch of videos (a job of `DSlatePerception.transitions`)."""
-    model, iterations, num_slots, restarts, state, slot_position, masks = spec
-    r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts, masks=masks)
+    model, iterations, num_slots, restarts, state, slot_position, masks, slot_init = spec
+    r = model.infer_video(videos, iterations=iterations, num_slots=num_slots, restarts=restarts, masks=masks,
+                          slot_init=slot_init)
     pooled = pool_masks(r.masks).cpu().float()
     return pooled, (pooled if state == "mask" else _slot_states(model, r, slot_position))
 

@@ -150,6 +150,28 @@ def test_implicit_slot_attention_reads_the_same_and_differentiates_one_step():
     assert not torch.allclose(full.to_q.weight.grad, implicit.to_q.weight.grad)  # it differs from unrolling
 
 
+def test_farthest_point_slots_seed_one_slot_on_each_part_of_the_scene():
+    """Three well-separated groups of inputs, three slots: one seed per group (the farthest
+    points), and each slot is one update from mu with its group's mean value; the read is
+    deterministic and does not depend on the inputs' order."""
+    torch.manual_seed(0)
+    sa = SlotAttention(input_dim=8, slot_dim=6, num_slots=3, iterations=2)
+    centres = torch.randn(3, 8) * 5
+    groups = torch.tensor([0] * 10 + [1] * 5 + [2] * 15)
+    x = (centres[groups] + 0.01 * torch.randn(30, 8))[None]                  # (1, 30, 8)
+    slots = sa.farthest_point_slots(x)
+    assert slots.shape == (1, 3, 6) and torch.equal(slots, sa.farthest_point_slots(x))
+    order = torch.randperm(30)
+    assert torch.allclose(sa.farthest_point_slots(x[:, order]).sort(1).values, slots.sort(1).values, atol=1e-6)
+    with torch.no_grad():
+        _, v = sa.to_kv(sa.norm_inputs(x[0])).chunk(2, dim=-1)
+        means = torch.stack([v[groups == g].mean(0) for g in range(3)])
+        new = sa.gru(means, sa.mu.reshape(1, -1).expand(3, -1))
+        expected = new + sa.mlp(new)                                          # one slot per group
+    assert all(any(torch.allclose(s, e, atol=1e-5) for s in slots[0]) for e in expected)
+    assert not torch.allclose(slots[0, 0], slots[0, 1])
+
+
 # ---------------------------------------------------------------- decoder, dynamics
 def test_decoder_is_causal():
     torch.manual_seed(0)
@@ -275,6 +297,24 @@ def test_restarts_keep_the_best_reconstruction_per_image(mixture):
         m.infer(images, restarts=0)
     with pytest.raises(ValueError, match="cannot be combined with init_slots"):
         m.infer(images, restarts=2, init_slots=best.slots)
+
+
+def test_farthest_slot_init_is_the_first_restart_and_needs_no_seed():
+    """slot_init "farthest": one restart reads the same slots whatever the seed, differs from
+    a draw, and with more restarts the kept read is never worse than the farthest start."""
+    torch.manual_seed(0)
+    m = DSlate(tiny_cfg()).eval()
+    images = videos(B=3, T=1)[0][:, 0]
+    x = images.float() / 255
+    one = m.infer(images, slot_init="farthest", seed=0)
+    assert torch.equal(one.slots, m.infer(images, slot_init="farthest", seed=7).slots)
+    assert not torch.allclose(one.slots, m.infer(images, seed=0).slots)
+    best = m.infer(images, slot_init="farthest", restarts=4, seed=3)
+    err_one = m.reconstruction_error(x, one.slots, one.attention)
+    assert (m.reconstruction_error(x, best.slots, best.attention) <= err_one + 1e-4).all()
+    assert m.infer_video(videos(B=2, T=2)[0], slot_init="farthest").slots.shape[:2] == (2, 2)
+    with pytest.raises(ValueError, match="slot_init must be one of 'random', 'farthest', got 'kmeans'"):
+        m.infer(images, slot_init="kmeans")
 
 
 def test_pixel_masks_move_an_edge_to_the_pixel_where_its_colour_ends():

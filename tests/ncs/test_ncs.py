@@ -789,6 +789,10 @@ def test_masks_default_to_the_models_env():
         DSlatePerception(plain, masks="pixel")
     with pytest.raises(ValueError, match="ncs.masks must be one of 'attention', 'pixel' or None \\(the env's\\), got 'edge'"):
         NCSConfig(masks="edge").validate()
+    with pytest.raises(ValueError, match="ncs.slot_init must be one of 'random', 'farthest', got 'grid'"):
+        NCSConfig(slot_init="grid").validate()
+    with pytest.raises(ValueError, match="slot_init must be one of 'random', 'farthest', got 'grid'"):
+        DSlatePerception(model, slot_init="grid")
 
 
 def test_step_trace_classifies_every_step_and_names_the_selected_object(oracle_graph):
