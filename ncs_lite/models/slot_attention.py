@@ -79,12 +79,12 @@ class SlotAttention(nn.Module):
         _, v = self.to_kv(self.norm_inputs(inputs)).chunk(2, dim=-1)          # (B, N, D)
         rows = torch.arange(B, device=v.device)
         far = (v - v.mean(1, keepdim=True)).pow(2).sum(-1)                     # (B, N)
-        seeds = []
+        to_seeds = []                                                          # K x (B, N)
         for k in range(K):
-            seeds.append(v[rows, far.argmax(1)])                               # (B, D)
-            to_seed = (v - seeds[-1][:, None]).pow(2).sum(-1)
-            far = to_seed if k == 0 else torch.minimum(far, to_seed)
-        part = F.one_hot(torch.cdist(v, torch.stack(seeds, 1)).argmin(-1), K).transpose(1, 2).to(v.dtype)
+            seed = v[rows, far.argmax(1)]                                      # (B, D)
+            to_seeds.append((v - seed[:, None]).pow(2).sum(-1))
+            far = to_seeds[-1] if k == 0 else torch.minimum(far, to_seeds[-1])
+        part = F.one_hot(torch.stack(to_seeds, -1).argmin(-1), K).transpose(1, 2).to(v.dtype)  # (B, K, N)
         updates = part @ v / part.sum(-1, keepdim=True).clamp(min=1)          # (B, K, D)
         new = self.gru(updates.reshape(B * K, -1), self.mu.reshape(1, -1).expand(B * K, -1)).reshape(B, K, -1)
         return new + self.mlp(new)
