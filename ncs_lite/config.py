@@ -156,6 +156,10 @@ class MixtureConfig:
 class TrainConfig:
     epochs: int = 200
     episodes_per_epoch: int = 5_000
+    num_objects: int = 4        # objects in each video of the training buffer that
+    #                             `reproduce seeds` and `obtain_dslate` collect (A.1: "each video
+    #                             in the experience buffer contains four objects"); `train
+    #                             --data` trains on the buffer it is given
     window: int = 5             # frames per training video (Table 2: episode length 5)
     batch_size: int = 32
     lr: float = 2e-4            # peak lr of slot attention, decoder and dynamics
@@ -357,7 +361,7 @@ _AT_LEAST = {
     "train.dvae_warmup_steps": 0, "train.checkpoint_every": 1, "train.seed": 0, "train.dynamics_steps": 0,
     "train.render_steps": 0, "train.render_mask_steps": 0, "mixture.render_hidden": 0,
     "train.refit_steps": 0, "train.polish_steps": 0, "train.segmentation_starts": 1,
-    "train.segmentation_start_steps": 0,
+    "train.segmentation_start_steps": 0, "train.num_objects": 1,
 }
 # float fields: (low, high, what is expected): low < value when high is None, else low <= value < high
 _IN_RANGE = {

@@ -693,8 +693,8 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     """The notebooks' "load the checkpoint if present, else train": returns (model, path).
 
     * `reduced` without `train_from_scratch`: `env`'s shipped checkpoint, when present.
-    * otherwise: train at `preset` (train.seed = `seed`) on the cached 4-object buffer
-      `data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`, writing
+    * otherwise: train at `preset` (train.seed = `seed`) on the cached buffer
+      `data.cached_buffer(TRAIN_EPISODES[preset], num_objects=cfg.train.num_objects, seed=seed)`, writing
       `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
       reused (unless `train_from_scratch`), an interrupted one is resumed, and one made with
       another config, env, buffer or training code is retrained; each decision is printed.
@@ -706,7 +706,7 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     cfg = get_preset(preset, env)
     cfg.train.seed = int(seed)
     path = cache_dir() / "checkpoints" / f"dslate-{env}-{preset}-s{seed}.pt"
-    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=int(seed))
+    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=cfg.train.num_objects, seed=int(seed))
 
     def unfinished(ckpt: Path) -> str | None:
         step, total = int(read_checkpoint(ckpt)["step"]), cfg.train.total_steps()

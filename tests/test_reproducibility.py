@@ -471,7 +471,8 @@ def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipp
     from ncs_lite.experiments.reproduce import seeds_table
 
     out = seeds_table("ci", seeds=(0,), runs=tmp_path / "runs", episodes=1, images=4,
-                      env="robogym-rearrange", out_dir=tmp_path / "tables", allow_dirty=True)
+                      env="robogym-rearrange", out_dir=tmp_path / "tables", allow_dirty=True,
+                      overrides=["train.num_objects=3"])     # the recipe names its buffer's count
     row = out["rows"][0]
     for k in (4, 5, 6, 7):
         assert {f"ncs_{k}", f"ncs_oracle_{k}", f"random_{k}", f"placed_fraction_{k}"} <= set(row)
@@ -480,4 +481,5 @@ def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipp
     assert row["heldout_error_7_r8"] > 0
     saved = json.loads((tmp_path / "tables" / "seeds_robogym_ci.json").read_text())
     assert saved["env"] == "robogym-rearrange" and saved["clusters"] == 8 and saved["shipped_seed"] == 0
+    assert "robogym-rearrange-k3-" in saved["buffer"]
     assert "heldout_error_7_r8" in saved["shipped_rule"]

@@ -112,8 +112,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 overrides=(), episodes: int = 100, objects=None, images: int | None = None,
                 graph_episodes: int | None = None, clusters: int | None = None,
                 env: str = "block-rearrange", out_dir=None, allow_dirty: bool = False) -> dict:
-    """Train `preset` (+ `overrides`) once per seed on the 4-object buffer (5,000 episodes,
-    buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
+    """Train `preset` (+ `overrides`) once per seed on the buffer of `train.num_objects` objects
+    (4 in every preset; 5,000 episodes, buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
     100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
     first `graph_episodes` (default `comparison.graph_episodes`) episodes (`clusters` nodes)
@@ -142,7 +142,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     base = ncs_config(ncs_overrides, state=states[0], **env_ncs)     # Table 3's state of the env first
     graph_episodes = graph_episodes or graph_episodes_of(preset, env)
     images = images or (20 if preset == "ci" else 200)
-    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=4, seed=0)
+    recipe = apply_overrides(get_preset(preset, env), overrides)
+    data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=recipe.train.num_objects, seed=0)
     rows = []
     for seed in seeds:
         folder = runs / f"{preset}-seed-{seed}"
