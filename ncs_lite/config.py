@@ -36,7 +36,7 @@ PolishLoss = Literal["slate", "mixture"]          # TrainConfig.polish_loss (tra
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
 SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
 MaskRead = Literal["attention", "pixel"]          # NCSConfig.masks (DSlate.infer)
-SlotInit = Literal["random", "farthest"]          # NCSConfig.slot_init (DSlate.infer)
+SlotInit = Literal["random", "farthest"]          # SlotConfig.init, NCSConfig.slot_init (DSlate.infer)
 AlignRule = Literal["hungarian", "mutual", "either", "near"]   # NCSConfig.align (ncs.policy.match)
 EdgeAction = Literal["most_common", "nearest", "compose", "readout"]   # NCSConfig.edge_action (ncs/graph.py)
 MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
@@ -94,6 +94,12 @@ class SlotConfig:
     implicit: bool = False      # differentiate only slot attention's last iteration, from the
     #                             detached slots of the others (implicit differentiation's
     #                             first-order form, Chang et al. 2022; not in the paper)
+    init: SlotInit = "random"   # where a video's first slots start in training and in the
+    #                             phases' reads: "random" (a draw from the learned Gaussian, the
+    #                             paper's) or "farthest" (SlotAttention.farthest_point_slots,
+    #                             seeded on the frame; not in the paper), so that training
+    #                             shapes the fixed points that one pass from that start reaches
+    #                             (`ncs.slot_init` sets how an agent's reads start)
 
     @property
     def slot_dim(self) -> int:
@@ -383,6 +389,7 @@ _CHOICES = {
     "mixture.alpha": MIXTURE_ALPHAS,
     "mixture.appearance": MIXTURE_APPEARANCES, "train.precision": ("auto", "bf16", "fp32"),
     "train.color_augment": COLOR_AUGMENTS, "train.lr_decay": ("none", "cosine"),
+    "slots.init": SLOT_INITS,
 }
 
 

@@ -199,10 +199,12 @@ class DSlate(nn.Module):
     def _inputs_to_slots(self, inp, T, init_slots=None, iterations=None, num_slots=None,
                          generator=None):
         """inp (B*T, N', d) -> slots (B, T, K, D), attention (B, T, K, N'); frame t+1 starts
-        from frame t's slots."""
+        from frame t's slots, frame 0 from `init_slots` or as `slots.init` says."""
         BT, N, d = inp.shape
         B = BT // T
         inp = inp.reshape(B, T, N, d)
+        if init_slots is None and self.cfg.slots.init == "farthest":
+            init_slots = self.slot_attn.farthest_point_slots(inp[:, 0], num_slots)
         slots, attns, prev = [], [], init_slots
         for t in range(T):
             prev, attn = self.slot_attn(inp[:, t], init_slots=prev, iterations=iterations,
@@ -536,6 +538,8 @@ class DSlate(nn.Module):
             if init_slots is None and slot_init == "farthest":
                 drawn = self.slot_attn.initial_slots(B * (restarts - 1), num_slots, gen)
                 init_slots = torch.cat([self.slot_attn.farthest_point_slots(inp, num_slots), drawn])
+            elif init_slots is None:       # drawn here: slots.init sets how training starts, not this
+                init_slots = self.slot_attn.initial_slots(B * restarts, num_slots, gen)
             # all restarts in one batch: row r * B + b is restart r of image b
             slots, attn = self._inputs_to_slots(
                 inp.repeat(restarts, 1, 1), 1, init_slots=init_slots,

@@ -317,6 +317,27 @@ def test_farthest_slot_init_is_the_first_restart_and_needs_no_seed():
         m.infer(images, slot_init="kmeans")
 
 
+def test_slots_init_farthest_starts_training_reads_on_the_frame_and_leaves_agents_reads_random():
+    """slots.init "farthest": a training step's first frame starts from the farthest-point
+    slots, so two forward passes agree whatever the global seed; `infer` keeps its restarts
+    drawn (a random read differs with its seed) unless `slot_init` asks otherwise."""
+    cfg = tiny_cfg()
+    cfg.slots.init = "farthest"
+    torch.manual_seed(0)
+    m = DSlate(cfg)
+    v, _ = videos(B=2, T=2)
+    inp = m._slot_inputs(v.flatten(0, 1).float() / 255.0)
+    first = [m._inputs_to_slots(inp, 2)[0] for _ in range(2)]
+    assert torch.equal(first[0], first[1])
+    m.eval()
+    images = v[:, 0]
+    assert not torch.allclose(m.infer(images, seed=0).slots, m.infer(images, seed=1).slots)
+    assert torch.equal(m.infer(images, restarts=3, seed=2).slots, m.infer(images, restarts=3, seed=2).slots)
+    cfg.slots.init = "grid"
+    with pytest.raises(ValueError, match="slots.init must be .*'random'.*'farthest'.*got 'grid'"):
+        cfg.validate()
+
+
 def test_pixel_masks_move_an_edge_to_the_pixel_where_its_colour_ends():
     """masks "pixel": each pixel goes to the slot whose attention and painted colour explain it
     (the mixture's posterior, `DSlate.pixel_masks`). A red square whose edges fall inside
