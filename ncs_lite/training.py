@@ -693,9 +693,9 @@ def obtain_dslate(preset: str = "reduced", train_from_scratch: bool = False, see
     """The notebooks' "load the checkpoint if present, else train": returns (model, path).
 
     * `reduced` without `train_from_scratch`: `env`'s shipped checkpoint, when present.
-    * otherwise: train at `preset` (train.seed = `seed`) on the cached buffer
-      `data.cached_buffer(TRAIN_EPISODES[preset], num_objects=cfg.train.num_objects, seed=seed)`, writing
-      `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
+    * otherwise: train at `preset` (train.seed = `seed`) on the cached buffer of
+      `train.num_objects` objects (`data.cached_buffer(TRAIN_EPISODES[preset], seed=seed)`),
+      writing `<cache>/checkpoints/dslate-<env>-<preset>-s<seed>.pt`. A finished checkpoint there is
       reused (unless `train_from_scratch`), an interrupted one is resumed, and one made with
       another config, env, buffer or training code is retrained; each decision is printed.
     With preset="reduced", seed=0 this is the command that made the shipped checkpoint.

@@ -113,8 +113,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
                 graph_episodes: int | None = None, clusters: int | None = None,
                 env: str = "block-rearrange", out_dir=None, allow_dirty: bool = False) -> dict:
     """Train `preset` (+ `overrides`) once per seed on the buffer of `train.num_objects` objects
-    (4 in every preset; 5,000 episodes, buffer seed 0: the shipped recipe), then for each seed: the type/state split's metrics on
-    100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
+    (4 in every preset; 5,000 episodes, buffer seed 0: the shipped recipe), then for each seed:
+    the type/state split's metrics on 100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
     first `graph_episodes` (default `comparison.graph_episodes`) episodes (`clusters` nodes)
     and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x),

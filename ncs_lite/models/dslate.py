@@ -535,11 +535,11 @@ class DSlate(nn.Module):
             if init_slots is not None and tuple(init_slots.shape[::2]) != (B, self.slot_dim):
                 raise ValueError(f"init_slots must have shape (B={B}, K, D={self.slot_dim}), "
                                  f"got {tuple(init_slots.shape)}")
-            if init_slots is None and slot_init == "farthest":
-                drawn = self.slot_attn.initial_slots(B * (restarts - 1), num_slots, gen)
-                init_slots = torch.cat([self.slot_attn.farthest_point_slots(inp, num_slots), drawn])
-            elif init_slots is None:       # drawn here: slots.init sets how training starts, not this
-                init_slots = self.slot_attn.initial_slots(B * restarts, num_slots, gen)
+            if init_slots is None:         # drawn here: slots.init sets how training starts, not this
+                farthest = slot_init == "farthest"
+                init_slots = self.slot_attn.initial_slots(B * (restarts - farthest), num_slots, gen)
+                if farthest:
+                    init_slots = torch.cat([self.slot_attn.farthest_point_slots(inp, num_slots), init_slots])
             # all restarts in one batch: row r * B + b is restart r of image b
             slots, attn = self._inputs_to_slots(
                 inp.repeat(restarts, 1, 1), 1, init_slots=init_slots,
