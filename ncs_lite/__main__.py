@@ -350,6 +350,9 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
+    p.add_argument("--segmentation-only", action="store_true",
+                   help="seeds: train segmentation alone, in about half a run's time (the --set list "
+                   "ncs_lite.experiments.reproduce.SEGMENTATION_ONLY): for ablations of what concerns segmentation")
     p.add_argument("--checkpoint", help="clusters, robogym, stacking: checkpoint (default: the shipped one)")
     p.add_argument("--graph", help="robogym, stacking: the learned NCS graph on slot states (default: the shipped one)")
     p.add_argument("--oracle-graph", help="robogym, stacking: the position oracle's graph (default: the shipped one)")

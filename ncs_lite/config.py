@@ -32,7 +32,7 @@ MixtureAlpha = Literal["decoder", "attention"]    # MixtureConfig.alpha (models/
 MixtureAppearance = Literal["slot", "type"]       # MixtureConfig.appearance
 MixtureError = Literal["mixed", "per_slot"]       # how DSlate.mixture_error scores the paint
 ColorAugment = Literal["none", "channels", "channels_gamma"]   # TrainConfig.color_augment (data/augment.py)
-PolishLoss = Literal["slate", "mixture"]          # TrainConfig.polish_loss (training.train_step)
+PhaseLoss = Literal["slate", "mixture"]           # TrainConfig.main_loss, polish_loss (training.train_step)
 EntityState = Literal["mask", "slot"]             # NCSConfig.state: Table 3's columns (ncs.graph.METRICS_BY_STATE)
 SlotPosition = Literal["attention", "assigned", "base"]   # NCSConfig.slot_position (ncs/perception.py)
 MaskRead = Literal["attention", "pixel"]          # NCSConfig.masks (DSlate.infer)
@@ -43,7 +43,7 @@ MIXTURE_ALPHAS = typing.get_args(MixtureAlpha)
 MIXTURE_APPEARANCES = typing.get_args(MixtureAppearance)
 MIXTURE_ERRORS = typing.get_args(MixtureError)
 COLOR_AUGMENTS = typing.get_args(ColorAugment)
-POLISH_LOSSES = typing.get_args(PolishLoss)
+PHASE_LOSSES = typing.get_args(PhaseLoss)
 ENTITY_STATES = typing.get_args(EntityState)
 SLOT_POSITIONS = typing.get_args(SlotPosition)
 MASK_READS = typing.get_args(MaskRead)
@@ -183,6 +183,15 @@ class TrainConfig:
     # failures (docs/recipe.md, "Tried and not adopted"). 0 steps = none
     segmentation_starts: int = 1
     segmentation_start_steps: int = 0
+    # what the main schedule minimises: "slate" DSlate.forward's sum (Table 2: every part
+    # trains jointly); "mixture" DSlate.mixture_loss alone, so that only slot attention, its
+    # encoder, the mixture decoder and the state-mask head train (the dVAE, the SLATE decoder
+    # and the dynamics stay at their initialisation). With decoder.slot_grad 0 slot attention
+    # learns from the mixture loss alone in either case, so "mixture" is a segmentation-only
+    # schedule at about a third of a step's cost: for ablations of what concerns segmentation
+    # (docs/recipe.md, "Ablations"); the seeds table leaves out the columns that read the
+    # untrained parts (experiments.reproduce.SEGMENTATION_ONLY)
+    main_loss: PhaseLoss = "slate"
     grad_clip: float = 1.0      # clip_grad_norm_ max norm, with norm type below
     grad_clip_norm: str = "inf"  # SLATE reference clips the inf-norm (max |grad|) at 1.0
     precision: str = "auto"     # "auto" | "bf16" | "fp32"; auto = bf16 autocast where supported
@@ -197,7 +206,7 @@ class TrainConfig:
     polish_mixture_error: MixtureError = "mixed"  # the mixture error of the polish steps (see
     #                             MixtureConfig.error): "per_slot" there splits slots that
     #                             blend two similar colours, once the cubes have slots
-    polish_loss: PolishLoss = "slate"  # what the polish minimises: "slate" DSlate.forward's sum
+    polish_loss: PhaseLoss = "slate"  # what the polish minimises: "slate" DSlate.forward's sum
     #                             (every part but the dVAE trains on it), "mixture" the mixture
     #                             decoder's and the state-mask head's losses alone
     #                             (DSlate.mixture_loss: a third of the step's cost; the SLATE
@@ -344,6 +353,9 @@ def _check_needs(cfg: "DSlateConfig") -> None:
         (cfg.train.segmentation_start_steps and not mixture,
          "train.segmentation_start_steps > 0 trains slot attention on the mixture decoder's loss, "
          "but mixture.weight is 0 (no mixture decoder)"),
+        (cfg.train.main_loss == "mixture" and not mixture,
+         "train.main_loss 'mixture' trains slot attention on the mixture decoder's loss, "
+         "but mixture.weight is 0 (no mixture decoder)"),
         (cfg.train.polish_steps and not mixture,
          "train.polish_steps > 0 polishes the mixture decoder's slots, but "
          "mixture.weight is 0 (no mixture decoder)"),
@@ -385,7 +397,8 @@ _IN_RANGE = {
 # fields that take one of a few words
 _CHOICES = {
     "slots.encoder": ("tokens", "cnn"), "mixture.error": MIXTURE_ERRORS,
-    "train.polish_mixture_error": MIXTURE_ERRORS, "train.polish_loss": POLISH_LOSSES,
+    "train.polish_mixture_error": MIXTURE_ERRORS, "train.polish_loss": PHASE_LOSSES,
+    "train.main_loss": PHASE_LOSSES,
     "mixture.alpha": MIXTURE_ALPHAS,
     "mixture.appearance": MIXTURE_APPEARANCES, "train.precision": ("auto", "bf16", "fp32"),
     "train.color_augment": COLOR_AUGMENTS, "train.lr_decay": ("none", "cosine"),

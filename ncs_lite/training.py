@@ -113,7 +113,7 @@ def autocast(device: torch.device, precision: str):
 # renderer, the one other part, trains alone in the render phases.
 SLATE_PARTS = ("dvae", "token_emb", "pos_emb", "mask_emb", "pixel_encoder", "sa_in", "slot_attn", "decoder",
                "dynamics", "mixture", "state_masks")
-# ... and those the mixture loss alone trains (a polish with `train.polish_loss` "mixture")
+# ... and those the mixture loss alone trains (`train.main_loss`, `train.polish_loss` "mixture")
 MIXTURE_PARTS = ("pixel_encoder", "sa_in", "slot_attn", "mixture", "state_masks")
 
 
@@ -183,8 +183,9 @@ def _all_phases(cfg: DSlateConfig) -> list[Phase]:
         Phase("dvae_warmup", t.dvae_warmup_steps, "dvae", ("dvae",), dvae_lr=cfg.dvae.lr),
         Phase("starts", t.segmentation_starts * t.segmentation_start_steps, "mixture", MIXTURE_PARTS, lr=t.lr,
               warmup=t.warmup_steps, augment=t.color_augment, starts=t.segmentation_starts),
-        Phase("main", t.main_steps() - t.dvae_warmup_steps, "slate", SLATE_PARTS, lr=t.lr,
-              warmup=t.warmup_steps, decay=t.lr_decay, dvae_lr=cfg.dvae.lr, augment=t.color_augment),
+        Phase("main", t.main_steps() - t.dvae_warmup_steps, t.main_loss,
+              SLATE_PARTS if t.main_loss == "slate" else MIXTURE_PARTS, lr=t.lr, warmup=t.warmup_steps,
+              decay=t.lr_decay, dvae_lr=cfg.dvae.lr if t.main_loss == "slate" else 0.0, augment=t.color_augment),
         Phase("polish", t.polish_steps, t.polish_loss,
               SLATE_PARTS[1:] if t.polish_loss == "slate" else MIXTURE_PARTS, lr=t.polish_lr,
               foreground_weight=t.polish_foreground_weight, mixture_error=t.polish_mixture_error,

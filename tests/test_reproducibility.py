@@ -274,6 +274,7 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
          "the clusters table does not read --env; it reads --checkpoint, --episodes"),
         (["reproduce", "robogym", "--set", "ncs.clusters=9"], "the robogym table does not read --set"),
         (["reproduce", "baselines", "--objects", "4"], "the baselines table does not read --objects"),
+        (["reproduce", "clusters", "--segmentation-only"], "the clusters table does not read --segmentation-only"),
         (["reproduce", "seeds", "--seeds", "0", "0"], "--seeds must be distinct, got [0, 0]"),
         (["evaluate", "--method", "random", "--set", "ncs.clusters=99", "--episodes", "1"],
          "--set ncs.clusters=99: evaluate reads a built graph"),
@@ -463,6 +464,24 @@ def test_code_keys_ignore_prose_but_not_code():
     assert code_of(base) != code_of('def f(x):\n    """Adds one."""\n    return x + 2\n')
     assert code_of('X = "a"\n') != code_of('X = "b"\n')                 # a string that is code
     assert code_of('class A:\n    """Doc."""\n') == code_of("class A:\n    pass\n")
+
+
+def test_a_segmentation_only_seeds_table_leaves_out_what_reads_untrained_parts(tmp_path):
+    """`reproduce seeds --segmentation-only`: the recipe's overrides name the schedule, and the
+    split's measures of the dynamics, the renderer and the dVAE, which it leaves untrained, are
+    not reported; the segmentation's and NCS's columns are."""
+    from ncs_lite.experiments.reproduce import SEGMENTATION_ONLY, SPLIT_METRICS_SEGMENTATION
+
+    assert main(["reproduce", "seeds", "--preset", "ci", "--seeds", "0", "--segmentation-only", "--objects", "4",
+                 "--episodes", "1", "--runs", str(tmp_path / "runs"), "--out-dir", str(tmp_path / "tables"),
+                 "--allow-dirty", "--set", "train.num_objects=3"]) == 0
+    saved = json.loads((tmp_path / "tables" / "seeds_ci.json").read_text())
+    assert saved["overrides"] == ["train.num_objects=3", *SEGMENTATION_ONLY]
+    row = saved["rows"][0]
+    assert {"fg_ari_7_r1", "shared_7_r1", "ncs_4", "ncs_slot_4", "heldout_error_4_r8"} <= set(row)
+    split = {c.split("_", 1)[1] for c in row if c.startswith("split_") and not c.startswith("split_r")}
+    assert split == set(SPLIT_METRICS_SEGMENTATION)
+    assert not any(m in c for c in row for m in ("moved_slot", "render_", "dvae_floor", "predicted_"))
 
 
 def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipped_seed(tmp_path):

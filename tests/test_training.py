@@ -121,6 +121,34 @@ def test_a_mixture_polish_trains_segmentation_alone(buffer, tmp_path, monkeypatc
         ci(polish_loss="tokens").validate()
 
 
+def test_a_segmentation_only_schedule_trains_segmentation_alone(buffer, tmp_path, monkeypatch):
+    from ncs_lite.config import apply_overrides
+    from ncs_lite.experiments.reproduce import SEGMENTATION_ONLY, trains_segmentation_only
+    from ncs_lite.utils import seed_everything
+
+    cfg = apply_overrides(get_preset("ci"), SEGMENTATION_ONLY)
+    assert trains_segmentation_only(cfg) and not trains_segmentation_only(get_preset("reduced"))
+    run = phases(cfg)
+    assert [(p.name, p.loss) for p in run] == [("dvae_warmup", "dvae"), ("main", "mixture"), ("polish", "mixture")]
+    assert run[1].trains == MIXTURE_PARTS and run[1].dvae_lr == 0.0
+    # the schedule's steps are the recipe's up to the polish: slot attention trains as long
+    assert [p.steps for p in run] == [p.steps for p in phases(get_preset("ci"))][:3]
+    cfg.train.dvae_warmup_steps = 0                           # the dVAE's own phase aside, nothing moves it
+    seed_everything(cfg.train.seed)                           # as the run initialises its model
+    init = {k: v.clone() for k, v in DSlate(cfg).state_dict().items()}
+    monkeypatch.setattr(DSlate, "forward", lambda *a, **k: pytest.fail("the schedule ran the full SLATE loss"))
+    after = torch.load(train(cfg, buffer, tmp_path / "m.pt"), weights_only=True)["model"]
+    changed = {k.split(".")[0] for k in init if not torch.equal(init[k], after[k])}
+    assert {"slot_attn", "mixture"} <= changed <= set(MIXTURE_PARTS)
+    with pytest.raises(ValueError, match="train.main_loss must be 'slate' or 'mixture', got 'tokens'"):
+        ci(main_loss="tokens").validate()
+    with pytest.raises(ValueError, match="train.main_loss 'mixture' trains slot attention on the mixture"):
+        apply_overrides(get_preset("ci"), ["train.main_loss=mixture", "mixture.weight=0",
+                                           "mixture.state_mask_weight=0", "mixture.render_hidden=0",
+                                           "train.render_steps=0", "train.render_mask_steps=0",
+                                           "train.polish_steps=0", "train.color_augment=none"]).validate()
+
+
 def test_segmentation_starts_keep_the_start_with_the_lowest_mixture_error(buffer, tmp_path, monkeypatch):
     import ncs_lite.training as training
 
