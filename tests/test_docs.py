@@ -267,3 +267,22 @@ def test_times_of_a_partial_rerun_name_each_commit(tmp_path, monkeypatch):
     times["commits"]["04_dslate_training"] = "bbbbbbb"                 # a whole run: one commit
     assert render_times_block(times).startswith("The last `make reproduce` ran the notebooks in 4.0 min")
     assert "one thread per process, commit bbbbbbb:" in render_results_md({}, times, {})
+
+
+def test_the_recipe_names_every_departure_of_reduced_from_table_2():
+    """docs/recipe.md's table of departures names every field in which `reduced` differs from
+    `paper` (Table 2), and each field its first column names exists; a field a recipe change
+    adds or moves must reach the table."""
+    from ncs_lite.config import config_diff, get_preset, to_dict
+
+    text = (REPO_DIR / "docs" / "recipe.md").read_text()
+    table = text.split("| field |", 1)[1].split("\n\n", 1)[0]
+    named = set(re.findall(r"`([a-z_]+\.[a-z_]+)`", table))
+    paper, reduced = to_dict(get_preset("paper")), to_dict(get_preset("reduced"))
+    differ = {d.split(":")[0] for d in config_diff(paper, reduced)} - {"name", "train.checkpoint_every"}
+    assert differ <= named, sorted(differ - named)
+    rows = [line.split("|")[1] for line in table.splitlines()[2:]]
+    for field in {f for row in rows for f in re.findall(r"`([a-z_]+\.[a-z_]+)`", row)}:
+        section, leaf = field.split(".")
+        assert leaf in paper[section], field
+    assert "`train.checkpoint_every`" in text                  # the one difference that changes no result
