@@ -179,13 +179,14 @@ def _all_phases(cfg: DSlateConfig) -> list[Phase]:
     """Every phase the trainer knows, in order, each with its start: one of 0 steps starts
     where a longer one would (what `--extend` checks a finished run against)."""
     t, prior = cfg.train, cfg.slots.position_prior
+    joint = t.main_loss == "slate"      # the main schedule trains every part (Table 2)
     plan = [
         Phase("dvae_warmup", t.dvae_warmup_steps, "dvae", ("dvae",), dvae_lr=cfg.dvae.lr),
         Phase("starts", t.segmentation_starts * t.segmentation_start_steps, "mixture", MIXTURE_PARTS, lr=t.lr,
               warmup=t.warmup_steps, augment=t.color_augment, starts=t.segmentation_starts),
         Phase("main", t.main_steps() - t.dvae_warmup_steps, t.main_loss,
-              SLATE_PARTS if t.main_loss == "slate" else MIXTURE_PARTS, lr=t.lr, warmup=t.warmup_steps,
-              decay=t.lr_decay, dvae_lr=cfg.dvae.lr if t.main_loss == "slate" else 0.0, augment=t.color_augment),
+              SLATE_PARTS if joint else MIXTURE_PARTS, lr=t.lr, warmup=t.warmup_steps,
+              decay=t.lr_decay, dvae_lr=cfg.dvae.lr if joint else 0.0, augment=t.color_augment),
         Phase("polish", t.polish_steps, t.polish_loss,
               SLATE_PARTS[1:] if t.polish_loss == "slate" else MIXTURE_PARTS, lr=t.polish_lr,
               foreground_weight=t.polish_foreground_weight, mixture_error=t.polish_mixture_error,

@@ -38,7 +38,7 @@ from ..ncs.dependencies import RULES
 from ..ncs.graph import TransitionGraph, graph_from_buffer
 from ..ncs.perception import acting_restarts, scene_slots
 from ..sweeps import check_executor
-from ..training import EXTENDABLE, train
+from ..training import EXTENDABLE, phases, train
 from ..utils import (ENV_SHORT_NAMES, REPO_DIR, atomic_write_json, cache_dir, check_out_dir, figures_dir, git_commit,
                     progress, provenance, relative_to_repo, sha256_file, source_hash)
 from .comparison import (CI_CLUSTERS, EPISODES, GRAPH_EPISODES, MPC_EPISODES, comparison_assets, graph_episodes_of,
@@ -120,11 +120,9 @@ SPLIT_METRICS_SEGMENTATION = ("type_invariance", "identity_from_z", "position_r2
 
 
 def trains_segmentation_only(cfg) -> bool:
-    """Whether a recipe trains segmentation alone (SEGMENTATION_ONLY): neither the dVAE's, the
-    SLATE decoder's nor the dynamics' loss is minimised in any of its phases."""
-    t = cfg.train
-    return (t.main_loss == "mixture" and (t.polish_loss == "mixture" or not t.polish_steps)
-            and not t.dynamics_steps and not t.refit_steps)
+    """Whether a recipe trains segmentation alone (SEGMENTATION_ONLY): its phases minimise the
+    mixture loss and nothing else but the dVAE's warm-up."""
+    return {p.loss for p in phases(cfg)} <= {"dvae", "mixture"}
 
 
 def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | None = None,
