@@ -347,7 +347,8 @@ def _add_reproduce(sub) -> None:
     p.add_argument("table", choices=sorted(reproduce.TABLES))
     p.add_argument("--preset", default="reduced", help="seeds: the recipe to train; baselines, fig10, fig11: "
                    "the assets (and fig10, fig11: the tasks per point)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds: training seeds (the table "
+                   "keeps its rows of other seeds measured with the same settings and code)")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
     p.add_argument("--segmentation-only", action="store_true",

@@ -502,3 +502,23 @@ def test_seeds_table_on_robogym_reports_every_count_the_references_and_the_shipp
     assert saved["env"] == "robogym-rearrange" and saved["clusters"] == 8 and saved["shipped_seed"] == 0
     assert "robogym-rearrange-k3-" in saved["buffer"]
     assert "heldout_error_7_r8" in saved["shipped_rule"]
+
+
+def test_a_seeds_table_keeps_the_rows_of_other_seeds_measured_alike(tmp_path, capsys):
+    """`reproduce seeds --seeds 3 4` after `--seeds 0 1 2` writes one five-seed table when both
+    runs measured with the same settings and code; a seed run again replaces its row, and a
+    table of other settings is replaced with a line naming what differs."""
+    from ncs_lite.experiments.reproduce import with_earlier_seeds
+
+    settings = {"preset": "reduced", "overrides": ["slots.iterations=5"], "objects": (4, 7), "code": "abc"}
+    path = tmp_path / "seeds_reduced.json"
+    assert with_earlier_seeds(path, [{"seed": 3, "ncs_4": 1.0}], settings) == [{"seed": 3, "ncs_4": 1.0}]
+    path.write_text(json.dumps({**settings, "objects": [4, 7],
+                                "rows": [{"seed": s, "ncs_4": 0.5} for s in (0, 1, 3)]}))
+    rows = with_earlier_seeds(path, [{"seed": 3, "ncs_4": 1.0}, {"seed": 4, "ncs_4": 0.9}], settings)
+    assert rows == [{"seed": 0, "ncs_4": 0.5}, {"seed": 1, "ncs_4": 0.5}, {"seed": 3, "ncs_4": 1.0},
+                    {"seed": 4, "ncs_4": 0.9}]
+    assert "keeping seeds 0, 1" in capsys.readouterr().out
+    for other in ({"code": "def"}, {"overrides": []}):
+        assert with_earlier_seeds(path, [{"seed": 4, "ncs_4": 0.9}], {**settings, **other}) == [{"seed": 4, "ncs_4": 0.9}]
+        assert f"with another {next(iter(other))}; the table is replaced" in capsys.readouterr().out

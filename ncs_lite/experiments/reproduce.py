@@ -47,7 +47,7 @@ from .hyperparameters import AXES, fig9_table
 from .stress import TASKS, stress_table
 from .tables import table_dir, write_table
 
-__all__ = ["TABLES", "run_table", "seeds_table", "clusters_table", "baselines_table",
+__all__ = ["TABLES", "run_table", "seeds_table", "with_earlier_seeds", "clusters_table", "baselines_table",
            "fig9_table", "fig10_table", "fig11_table",
            "mean_sd"]
 
@@ -145,7 +145,10 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     two objects in one slot, which the 4-object error does not (docs/HISTORY.md, "Which
     unsupervised measure sees a bad seed"). Resumable (every stage
     is keyed by what it depends on); a run of another recipe in `runs` is refused, one that
-    lacks only the recipe's later phases (e.g. the render phase) is kept and extended.
+    lacks only the recipe's later phases (e.g. the render phase) is kept and extended. The
+    table keeps the rows of other seeds that it already holds when they were measured with the
+    same settings and code (`with_earlier_seeds`): `--seeds 0 1 2`, then `--seeds 3 4` on
+    another day or machine, write one five-seed table.
     `overrides` of the `ncs` section (`ncs.restarts=8`) set how NCS reads the models and builds
     its graphs; the others set the recipe. Hours on a CPU."""
     block = env == "block-rearrange"
@@ -166,8 +169,9 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         folder = runs / f"{preset}-seed-{seed}"
         ckpt_path = _trained_seed(folder, preset, env, overrides, seed, data)
         ckpt, model, ckpt_hash = read_checkpoint(ckpt_path), load_dslate(ckpt_path), sha256_file(ckpt_path)
+        version = ckpt.get("code_version") or {}
         row = {"seed": seed, "train_minutes": round(float(ckpt["seconds"]) / 60, 1),
-               "commit": (ckpt.get("code_version") or {}).get("commit")}
+               "commit": version.get("commit"), "training_code": version.get("training_code")}
         row.update(_segmentation_columns(folder, model, ckpt_hash, env, images, acting_restarts(base, model),
                                          max(objects)))
         for state in states:
@@ -181,20 +185,45 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         for row in rows:
             row.update(refs)
 
+    name = table_name("seeds", env, preset)
+    settings = {"env": env, "preset": preset, "overrides": list(overrides), "buffer": relative_to_repo(data),
+                "graph_episodes": graph_episodes, "episodes": episodes, "objects": list(objects), "images": images,
+                "clusters": base.clusters, "ncs": to_dict(base), "ncs_overrides": ncs_overrides,
+                "code": source_hash(*STAGE_CODE)}
+    rows = with_earlier_seeds(table_dir(out_dir) / f"{name}.json", rows, settings)
     metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "shared_", "train_minutes",
                                                    "split_", "heldout_")) and not c.endswith("_ci")]
     summary = {m: mean_sd([r[m] for r in rows]) for m in metrics}
     rule = _shipping_column(max(objects))
     shipped = min(rows, key=lambda r: r[rule])["seed"]
-    meta = {"env": env, "preset": preset, "overrides": list(overrides), "seeds": list(seeds),
-            "buffer": relative_to_repo(data), "graph_episodes": graph_episodes, "episodes": episodes,
-            "objects": list(objects), "images": images, "clusters": base.clusters,
-            "ncs": to_dict(base), "ncs_overrides": ncs_overrides, "summary": summary,
-            "shipped_seed": shipped,
+    meta = {**settings, "seeds": [r["seed"] for r in rows], "summary": summary, "shipped_seed": shipped,
             "shipped_rule": f"the lowest held-out reconstruction error at {max(objects)} objects ({rule})"}
-    write_table(table_name("seeds", env, preset), rows, meta, out_dir,
-                allow_dirty)
+    write_table(name, rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "summary": summary, "shipped_seed": shipped}
+
+
+def with_earlier_seeds(path: Path, rows: list[dict], settings: dict) -> list[dict]:
+    """`rows` joined, by seed, with the rows of the seeds table at `path` that this run did not
+    measure, when that table was measured with the same `settings` (the recipe, the evaluation's
+    parameters and the evaluation code's `source_hash`): a seeds table grows a few seeds at a
+    time, on one machine or several, and a row once measured is not measured again. A table of
+    other settings is replaced, with a line naming what differs."""
+    if not path.exists():
+        return rows
+    earlier = json.loads(path.read_text())
+    ours = {r["seed"] for r in rows}
+    others = [r for r in earlier.get("rows", []) if r["seed"] not in ours]
+    if not others:
+        return rows
+    settings = json.loads(json.dumps(settings))        # tuples read back as lists
+    differs = [k for k in settings if earlier.get(k) != settings[k]]
+    seeds = ", ".join(str(r["seed"]) for r in others)
+    if differs:
+        print(f"{relative_to_repo(path)}: seeds {seeds} were measured with another {', '.join(differs)}; "
+              "the table is replaced", flush=True)
+        return rows
+    print(f"{relative_to_repo(path)}: keeping seeds {seeds} (same recipe, evaluation and code)", flush=True)
+    return sorted(rows + others, key=lambda r: r["seed"])
 
 
 def _trained_seed(folder: Path, preset: str, env: str, overrides, seed: int, data) -> Path:
