@@ -11,7 +11,8 @@ typed by hand, so a table that changes changes the text with it.
 The README holds three blocks, each between two marker lines (`<!-- NAME:begin -->` and
 `<!-- NAME:end -->`): `results` (the headline numbers of both environments and the main
 comparison), `times` (what `make reproduce` takes) and `notebooks` (one line per notebook
-with its measured time). A table that is absent (one still being computed) is left out;
+with its measured time); docs/recipe.md holds one, `ablations` (the recipe's drop-one
+ablations, `render_ablations_block`). A table that is absent (one still being computed) is left out;
 a table of an unknown shape is rendered generically. Each table's command is rebuilt from
 its own metadata (`table_command`). tests/test_docs.py fails when the committed text
 differs from what this module writes.
@@ -34,7 +35,7 @@ from .envs.block_rearrange import BlockRearrangeConfig
 from .utils import ENV_SHORT_NAMES, NOTEBOOK_ENV_SUFFIX, REPO_DIR, atomic_write_text, split_notebook_run
 
 __all__ = ["write_docs", "load_tables", "render_table", "render_results_md", "readme_blocks",
-           "replace_block", "table_command", "format_value", "format_mean_sd", "main"]
+           "replace_block", "render_ablations_block", "table_command", "format_value", "format_mean_sd", "main"]
 
 BLOCK_ENVS = ("block-rearrange", "robogym-rearrange")
 # the order of the environments in the headline table
@@ -785,6 +786,105 @@ def replace_block(text: str, name: str, content: str, where: str = "README.md") 
     return text[:i] + "\n" + content.strip("\n") + "\n" + text[j:]
 
 
+# --------------------------------------------------------------------------- docs/recipe.md
+ABLATIONS = "ablations"        # figures/tables/ablations/<name>/: drop-one ablations of the recipe
+# the headlines an ablation is judged by: NCS on masks at 4 and 7 objects, on slot states at 7,
+# and one slot-attention pass's fg-ARI at 7 (the measures the recipe's targets name)
+ABLATION_COLUMNS = ("ncs_4", "ncs_7", "ncs_slot_7", "fg_ari_7_r1")
+
+
+def _recipe_fields(table: dict) -> dict[str, str]:
+    """{field: value} of a seeds table's `--set` list (the last one of a field wins)."""
+    return dict(str(o).split("=", 1) for o in table.get("overrides") or [])
+
+
+def _undone(table: dict, reference: dict) -> list[str] | None:
+    """The `--set` list that turns `reference`'s recipe into `table`'s, or None when `table`
+    is not `reference` with more overrides (another preset, env or reading of the tasks, or a
+    field `reference` sets that `table` leaves at the preset's value)."""
+    same = ("env", "preset", "objects", "episodes", "ncs")
+    if any(table.get(k) != reference.get(k) for k in same):
+        return None
+    mine, theirs = _recipe_fields(table), _recipe_fields(reference)
+    if not set(theirs) <= set(mine):
+        return None
+    return [f"{f}={v}" for f, v in mine.items() if theirs.get(f) != v]
+
+
+def _ablation_reference(path: str, table: dict, tables: dict) -> tuple[str, dict, list[str]] | None:
+    """(path, table, undone) of the seeds table an ablation is measured against: of the other
+    seeds tables (ablations/ included, for a reference trained segmentation-only), the one it
+    extends by the fewest fields, a top-level table first on a tie."""
+    found = []
+    for other_path, other in tables.items():
+        if other_path == path or not _is_seeds(other.get("table") or Path(other_path).stem):
+            continue
+        undone = _undone(table, other)
+        if undone:
+            found.append((len(undone), other_path.count("/"), other_path, other, undone))
+    return min(found, key=lambda f: f[:3])[2:] if found else None
+
+
+def _moved(table: dict, reference: dict) -> list[str]:
+    """The headlines (ABLATION_COLUMNS) whose mean over seeds differs from the reference's by
+    more than the larger of the two standard deviations: "`ncs` on masks, 7 objects 0.95 -> 0.60"."""
+    moved = []
+    for column in ABLATION_COLUMNS:
+        a, b = _summary(table, column), _summary(reference, column)
+        if not a or not b:
+            continue
+        spread = max(0.0 if not math.isfinite(float(s["sd"])) else float(s["sd"]) for s in (a, b))
+        if abs(a["mean"] - b["mean"]) > spread:
+            _, _, template, groups, kind, _ = _column(column)
+            label = _label(template, groups, _state(table))
+            moved.append(f"{label} {format_value(b['mean'], kind)} -> {format_value(a['mean'], kind)}")
+    return moved
+
+
+def _headline_cells(table: dict) -> list[str]:
+    cells = []
+    for column in ABLATION_COLUMNS:
+        s = _summary(table, column)
+        if s is None:
+            cells.append("–")
+            continue
+        _, _, _, _, kind, better = _column(column)
+        worst = _worst(table, column, better, kind).split(" (")[0]
+        cells.append(f"{format_mean_sd(s['mean'], s['sd'], kind)} ({worst})")
+    return cells
+
+
+def render_ablations_block(tables: dict) -> str:
+    """docs/recipe.md's `ablations` block: each seeds table under figures/tables/ablations/
+    beside the recipe it undoes departures of (`_ablation_reference`), its headlines over
+    training seeds (mean ± sd, worst seed) and which of them move beyond the seeds' spread."""
+    ablations = {p: t for p, t in tables.items() if p.startswith(ABLATIONS + "/") and _is_seeds(t.get("table") or "")}
+    lines = ["Generated by `python -m ncs_lite.docs` from `figures/tables/ablations/` (each table's command: "
+             "[results.md](results.md)). Each row is measured against the seeds table of the recipe it undoes "
+             "departures of, with the same schedule and reading; a headline **moves** when the two means over "
+             "seeds differ by more than the larger of their two standard deviations. Cells: mean ± sd "
+             "(worst seed).", ""]
+    header = ["undone (`--set`)", "seeds", "`ncs` on masks, 4", "`ncs` on masks, 7", "`ncs` on slot states, 7",
+              "fg-ARI 7, one start", "verdict"]
+    body, references = [], {}
+    for path, table in ablations.items():
+        found = _ablation_reference(path, table, tables)
+        if found is None:
+            body.append([f"`{path}`: no seeds table of a recipe it extends", str(len(table["rows"])),
+                         *_headline_cells(table), "–"])
+            continue
+        ref_path, reference, undone = found
+        if ref_path not in references:
+            references[ref_path] = True
+            body.append([f"the recipe: `{ref_path}`", str(len(reference["rows"])), *_headline_cells(reference), ""])
+        moved = _moved(table, reference)
+        verdict = ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread"
+        body.append([" ".join(f"`{u}`" for u in undone), str(len(table["rows"])), *_headline_cells(table), verdict])
+    if not body:
+        return "\n".join(lines[:1] + ["", "No ablation has been run yet."]) + "\n"
+    return "\n".join(lines + _markdown(header, body)) + "\n"
+
+
 # --------------------------------------------------------------------------- docs/results.md
 def render_results_md(tables: dict, times: dict, titles: dict) -> str:
     """docs/results.md: the notebook times and every table under figures/tables/."""
@@ -795,7 +895,8 @@ def render_results_md(tables: dict, times: dict, titles: dict) -> str:
              "command of this commit regenerates are in [HISTORY.md](HISTORY.md).", "",
              "Tables in subfolders are kept beside the main ones: `shipped/` measures the shipped checkpoint "
              "alone, `variants/` a recipe or reading that was tried and not adopted (its overrides in its "
-             "command).", ""]
+             "command), `ablations/` the recipe with one departure from Table 2 undone "
+             "([recipe.md](recipe.md#drop-one-ablations)).", ""]
     lines += ["Contents: [notebook times](#notebook-times)"
               + "".join(f", [`{p}`](#{_anchor(p)})" for p in tables), ""]
     per = _split_times(times)
@@ -847,6 +948,11 @@ def write_docs(check: bool = False, root: str | Path | None = None) -> list[str]
     stale = []
     if stale_blocks:
         stale.append(f"README.md (blocks: {', '.join(stale_blocks)})")
+    recipe_path = root / "docs" / "recipe.md"          # optional: a tree without it has no ablations block
+    recipe = recipe_path.read_text(encoding="utf-8") if recipe_path.exists() else None
+    new_recipe = recipe and replace_block(recipe, "ablations", render_ablations_block(tables), "docs/recipe.md")
+    if new_recipe != recipe:
+        stale.append("docs/recipe.md (block: ablations)")
     old_results = results_path.read_text(encoding="utf-8") if results_path.exists() else None
     if old_results != results:
         stale.append("docs/results.md")
@@ -855,6 +961,8 @@ def write_docs(check: bool = False, root: str | Path | None = None) -> list[str]
             atomic_write_text(readme_path, new_readme)
         if old_results != results:
             atomic_write_text(results_path, results)
+        if new_recipe != recipe:
+            atomic_write_text(recipe_path, new_recipe)
     return stale
 
 

@@ -286,3 +286,31 @@ def test_the_recipe_names_every_departure_of_reduced_from_table_2():
         section, leaf = field.split(".")
         assert leaf in paper[section], field
     assert "`train.checkpoint_every`" in text                  # the one difference that changes no result
+
+
+def test_an_ablation_is_measured_against_the_recipe_it_extends():
+    """docs/recipe.md's ablations block: each table under ablations/ beside the seeds table of
+    the recipe it undoes departures of (the closest one, a segmentation-only reference for a
+    segmentation-only ablation), with the headlines that move beyond the seeds' spread."""
+    from ncs_lite.docs import render_ablations_block
+
+    def seeds(overrides, ncs_7):
+        return {"table": "seeds_reduced", "env": "block-rearrange", "preset": "reduced", "objects": [4, 7],
+                "episodes": 100, "ncs": {"state": "mask"}, "overrides": overrides, "seeds": [0, 1, 2],
+                "rows": [{"seed": s, "ncs_4": 1.0, "ncs_7": v} for s, v in enumerate(ncs_7)]}
+
+    seg = ["train.main_loss=mixture", "train.render_steps=0"]
+    tables = {"seeds_reduced.json": seeds([], [0.9, 0.92, 0.94]),
+              "ablations/no_prior/seeds_reduced.json": seeds(["slots.position_prior=0"], [0.5, 0.6, 0.7]),
+              "ablations/segmentation_only/seeds_reduced.json": seeds(seg, [0.9, 0.9, 0.94]),
+              "ablations/no_polish/seeds_reduced.json": seeds([*seg, "train.polish_steps=0"], [0.88, 0.9, 0.92]),
+              "ablations/other_env/seeds_reduced.json": {**seeds(["train.epochs=2"], [0.9]), "env": "robogym-rearrange"}}
+    block = render_ablations_block(tables)
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in block.splitlines() if line.startswith("| ")}
+    assert "0.92 ± 0.02 (0.90)" in rows["the recipe: `seeds_reduced.json`"]
+    assert rows["`slots.position_prior=0`"].endswith("**moves**: `ncs` on masks, 7 objects 0.92 -> 0.60 |")
+    # against the recipe trained segmentation-only, not the full one
+    assert "the recipe: `ablations/segmentation_only/seeds_reduced.json`" in rows
+    assert rows["`train.polish_steps=0`"].endswith("within the seeds' spread |")
+    assert rows["`ablations/other_env/seeds_reduced.json`: no seeds table of a recipe it extends"]
+    assert "No ablation has been run yet." in render_ablations_block({"seeds_reduced.json": tables["seeds_reduced.json"]})
