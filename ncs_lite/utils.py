@@ -320,12 +320,15 @@ def provenance(target: str | os.PathLike, allow_dirty: bool = False) -> dict:
 
 
 def relative_to_repo(path: str | os.PathLike) -> str:
-    """`path` relative to the repo when inside it (so provenance does not name this machine)."""
-    p = Path(path).resolve()
-    try:
-        return str(p.relative_to(REPO_DIR))
-    except ValueError:
-        return str(path)
+    """`path` relative to the repo when inside it (so provenance does not name this machine),
+    as written or with its links followed: `.cache/...` also where `.cache` is a link to
+    another checkout's cache (a git worktree sharing it)."""
+    for p in (Path(os.path.abspath(path)), Path(path).resolve()):
+        try:
+            return str(p.relative_to(REPO_DIR))
+        except ValueError:
+            pass
+    return str(path)
 
 
 def sha256_file(path: str | os.PathLike) -> str:

@@ -522,3 +522,17 @@ def test_a_seeds_table_keeps_the_rows_of_other_seeds_measured_alike(tmp_path, ca
     for other in ({"code": "def"}, {"overrides": []}):
         assert with_earlier_seeds(path, [{"seed": 4, "ncs_4": 0.9}], {**settings, **other}) == [{"seed": 4, "ncs_4": 0.9}]
         assert f"with another {next(iter(other))}; the table is replaced" in capsys.readouterr().out
+
+
+def test_paths_in_results_are_relative_to_the_repo_through_a_linked_cache(tmp_path, monkeypatch):
+    """A worktree whose `.cache` links to another checkout's records `.cache/...`, not the
+    other checkout's path (tables compare their inputs across machines by these names)."""
+    elsewhere = tmp_path / "other" / ".cache"
+    (elsewhere / "buffers").mkdir(parents=True)
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    (repo / ".cache").symlink_to(elsewhere)
+    monkeypatch.setattr(utils, "REPO_DIR", repo)
+    assert utils.relative_to_repo(repo / ".cache" / "buffers") == ".cache/buffers"
+    assert utils.relative_to_repo(repo / "figures" / "x.json") == "figures/x.json"
+    assert utils.relative_to_repo(tmp_path / "other" / "y") == str(tmp_path / "other" / "y")
