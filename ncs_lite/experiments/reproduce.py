@@ -148,7 +148,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     lacks only the recipe's later phases (e.g. the render phase) is kept and extended. The
     table keeps the rows of other seeds that it already holds when they were measured with the
     same settings and code (`with_earlier_seeds`): `--seeds 0 1 2`, then `--seeds 3 4` on
-    another day or machine, write one five-seed table.
+    another day or machine, write one five-seed table; it is written after every seed, so a
+    run stopped part way keeps the seeds it finished.
     `overrides` of the `ncs` section (`ncs.restarts=8`) set how NCS reads the models and builds
     its graphs; the others set the recipe. Hours on a CPU."""
     block = env == "block-rearrange"
@@ -164,7 +165,14 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     images = images or (20 if preset == "ci" else 200)
     recipe = apply_overrides(get_preset(preset, env), overrides)
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=recipe.train.num_objects, seed=0)
-    rows = []
+    name = table_name("seeds", env, preset)
+    provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused before hours of training
+    refs = {} if block else _reference_rows(env, runs, base, objects, episodes, graph_episodes)
+    settings = {"env": env, "preset": preset, "overrides": list(overrides), "buffer": relative_to_repo(data),
+                "graph_episodes": graph_episodes, "episodes": episodes, "objects": list(objects), "images": images,
+                "clusters": base.clusters, "ncs": to_dict(base), "ncs_overrides": ncs_overrides,
+                "code": source_hash(*STAGE_CODE)}
+    rows, table = [], {}
     for seed in seeds:
         folder = runs / f"{preset}-seed-{seed}"
         ckpt_path = _trained_seed(folder, preset, env, overrides, seed, data)
@@ -178,26 +186,27 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
             ncs = ncs_config(ncs_overrides, state=state, **env_ncs)
             suffix = "_slot" if block and state == "slot" else ""
             row.update(_ncs_columns(folder, model, ckpt_hash, ncs, suffix, env, graph_episodes, objects, episodes))
+        row.update(refs)        # the references of the same tasks, which no training seed changes
         rows.append(row)
         print(json.dumps(row), flush=True)
-    if not block:     # the references of the same tasks, which no training seed changes
-        refs = _reference_rows(env, runs, base, objects, episodes, graph_episodes)
-        for row in rows:
-            row.update(refs)
+        # written after every seed: a run stopped part way keeps the seeds it finished
+        table = _write_seeds_table(name, rows, settings, out_dir, allow_dirty)
+    return table
 
-    name = table_name("seeds", env, preset)
-    settings = {"env": env, "preset": preset, "overrides": list(overrides), "buffer": relative_to_repo(data),
-                "graph_episodes": graph_episodes, "episodes": episodes, "objects": list(objects), "images": images,
-                "clusters": base.clusters, "ncs": to_dict(base), "ncs_overrides": ncs_overrides,
-                "code": source_hash(*STAGE_CODE)}
+
+def _write_seeds_table(name: str, rows: list[dict], settings: dict, out_dir, allow_dirty: bool) -> dict:
+    """Write the seeds table `name` of `rows` and the rows it keeps of other seeds
+    (`with_earlier_seeds`), with each measure's mean ± sd over seeds and the seed the
+    shipping rule picks; returns {"rows", "summary", "shipped_seed"}."""
     rows = with_earlier_seeds(table_dir(out_dir) / f"{name}.json", rows, settings)
     metrics = [c for c in rows[0] if c.startswith(("fg_ari_", "ncs_", "absorbed_", "shared_", "train_minutes",
                                                    "split_", "heldout_")) and not c.endswith("_ci")]
     summary = {m: mean_sd([r[m] for r in rows]) for m in metrics}
-    rule = _shipping_column(max(objects))
+    most = max(settings["objects"])
+    rule = _shipping_column(most)
     shipped = min(rows, key=lambda r: r[rule])["seed"]
     meta = {**settings, "seeds": [r["seed"] for r in rows], "summary": summary, "shipped_seed": shipped,
-            "shipped_rule": f"the lowest held-out reconstruction error at {max(objects)} objects ({rule})"}
+            "shipped_rule": f"the lowest held-out reconstruction error at {most} objects ({rule})"}
     write_table(name, rows, meta, out_dir, allow_dirty)
     return {"rows": rows, "summary": summary, "shipped_seed": shipped}
 
