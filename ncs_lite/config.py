@@ -186,11 +186,12 @@ class TrainConfig:
     # what the main schedule minimises: "slate" DSlate.forward's sum (Table 2: every part
     # trains jointly); "mixture" DSlate.mixture_loss alone, so that only slot attention, its
     # encoder, the mixture decoder and the state-mask head train (the SLATE decoder and the
-    # dynamics stay at their initialisation, the dVAE where its warm-up left it). With decoder.slot_grad 0 slot attention
-    # learns from the mixture loss alone in either case, so "mixture" is a segmentation-only
-    # schedule at about a third of a step's cost: for ablations of what concerns segmentation
-    # (docs/recipe.md, "Ablations of segmentation alone"); the seeds table leaves out the
-    # columns that read the untrained parts (experiments.reproduce.SEGMENTATION_ONLY)
+    # dynamics stay at their initialisation, the dVAE where its warm-up left it). With
+    # decoder.slot_grad 0 slot attention learns from the mixture loss alone in either case,
+    # so "mixture" is a segmentation-only schedule at about a third of a step's cost: for
+    # ablations of what concerns segmentation (docs/recipe.md, "Ablations of segmentation
+    # alone"); the seeds table leaves out the columns that read the untrained parts
+    # (experiments.reproduce.SEGMENTATION_ONLY)
     main_loss: PhaseLoss = "slate"
     grad_clip: float = 1.0      # clip_grad_norm_ max norm, with norm type below
     grad_clip_norm: str = "inf"  # SLATE reference clips the inf-norm (max |grad|) at 1.0

@@ -230,6 +230,13 @@ def _worst(table: dict, column: str, better: str | None, kind: str) -> str:
     return f"{format_value(row[column], kind)} ({who})"
 
 
+def _seeds_cell(table: dict, column: str, kind: str, better: str | None) -> str:
+    """A column over training seeds: "0.96 ± 0.04 (0.92)", the mean ± sd and the worst seed."""
+    s = _summary(table, column)
+    worst = _worst(table, column, better, kind).split(" (")[0]
+    return f"{format_mean_sd(s['mean'], s['sd'], kind)} ({worst})"
+
+
 def _constant(table: dict, column: str) -> bool:
     """Whether every row has the same value (e.g. the oracle's success, which no training
     seed changes)."""
@@ -602,9 +609,7 @@ def _headline_rows(tables: dict) -> list[tuple[str, str, dict, str]]:
             if learned:
                 label += f", {len(rows)} training seeds" if len(rows) > 1 else ", one training seed"
             if len(rows) > 1 and (learned or not _constant(table, column)):
-                s = _summary(table, column)
-                worst = _worst(table, column, better, kind).split(" (")[0]
-                cell = f"{format_mean_sd(s['mean'], s['sd'], kind)} ({worst})"
+                cell = _seeds_cell(table, column, kind, better)
             else:
                 cell = _cell(rows[0], column, kind)
             cells, _ = found.setdefault((_env(table), label), ({}, table_command(path, table)))
@@ -833,7 +838,7 @@ def _moved(table: dict, reference: dict) -> list[str]:
         a, b = _summary(table, column), _summary(reference, column)
         if not a or not b:
             continue
-        spread = max(0.0 if not math.isfinite(float(s["sd"])) else float(s["sd"]) for s in (a, b))
+        spread = max(float(s["sd"]) if math.isfinite(float(s["sd"])) else 0.0 for s in (a, b))   # one seed: no sd
         if abs(a["mean"] - b["mean"]) > spread:
             _, _, template, groups, kind, _ = _column(column)
             label = _label(template, groups, _state(table))
@@ -842,16 +847,8 @@ def _moved(table: dict, reference: dict) -> list[str]:
 
 
 def _headline_cells(table: dict) -> list[str]:
-    cells = []
-    for column in ABLATION_COLUMNS:
-        s = _summary(table, column)
-        if s is None:
-            cells.append("–")
-            continue
-        _, _, _, _, kind, better = _column(column)
-        worst = _worst(table, column, better, kind).split(" (")[0]
-        cells.append(f"{format_mean_sd(s['mean'], s['sd'], kind)} ({worst})")
-    return cells
+    """The ABLATION_COLUMNS of a seeds table, each over its seeds ("–" where it has none)."""
+    return [_seeds_cell(table, c, *_column(c)[4:]) if _summary(table, c) else "–" for c in ABLATION_COLUMNS]
 
 
 def render_ablations_block(tables: dict) -> str:
@@ -866,7 +863,7 @@ def render_ablations_block(tables: dict) -> str:
              "(worst seed).", ""]
     header = ["undone (`--set`)", "seeds", "`ncs` on masks, 4", "`ncs` on masks, 7", "`ncs` on slot states, 7",
               "fg-ARI 7, one start", "verdict"]
-    body, references = [], {}
+    body, shown = [], set()         # each reference's own row once, before its first ablation
     for path, table in ablations.items():
         found = _ablation_reference(path, table, tables)
         if found is None:
@@ -874,8 +871,8 @@ def render_ablations_block(tables: dict) -> str:
                          *_headline_cells(table), "–"])
             continue
         ref_path, reference, undone = found
-        if ref_path not in references:
-            references[ref_path] = True
+        if ref_path not in shown:
+            shown.add(ref_path)
             body.append([f"the recipe: `{ref_path}`", str(len(reference["rows"])), *_headline_cells(reference), ""])
         moved = _moved(table, reference)
         verdict = ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread"
