@@ -29,7 +29,8 @@ from .envs.common import outside_action_space
 from .metrics import in_floor_slot, shared_with_another, slot_assignment
 from .ncs.graph import TransitionGraph
 from .ncs.perception import (ORACLE_STATES, STATE_GRID, DSlatePerception, OraclePerception, acting_masks,
-                             acting_restarts, acting_slot_position, built_slot_position, scene_slots)
+                             acting_restarts, acting_slot_init, acting_slot_position, built_slot_position,
+                             scene_slots)
 from .ncs.policy import NCSAgent
 from .sweeps import run_sweep
 from .utils import atomic_write_text, check_file_env, progress, recorded_env
@@ -299,15 +300,15 @@ NEED_NAMES = {"graph": "transition graph (--graph)", "model": "dSLATE checkpoint
 
 def learned_perception(model, num_objects: int, ncs=None):
     """The perception the learned agents (`ncs`, `nf`, `mpc`) read a scene of `num_objects`
-    objects with: `scene_slots` slots (one per object plus `ncs.extra_slots`, the background's,
-    at least the model's K; or exactly `ncs.slots`), and the restarts (`acting_restarts`),
-    iterations, first start (`slot_init`), kind of state, slot position and masks of `ncs` (an
-    `NCSConfig`, default the paper's reading)."""
+    objects with: `scene_slots` slots (one per object plus `acting_extra_slots`, the
+    background's and any spare, at least the model's K; or exactly `ncs.slots`), and the
+    restarts (`acting_restarts`), iterations, first start (`acting_slot_init`), kind of state,
+    slot position and masks of `ncs` (an `NCSConfig`, default the env's reading)."""
     ncs = ncs or NCSConfig()
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=scene_slots(model, num_objects, ncs),
                             restarts=acting_restarts(ncs, model), state=ncs.state,
                             slot_position=acting_slot_position(ncs, model), masks=acting_masks(ncs, model),
-                            slot_init=ncs.slot_init)
+                            slot_init=acting_slot_init(ncs, model))
 
 
 def state_features(method: str, state: str, model=None) -> int | None:

@@ -479,6 +479,8 @@ def test_a_segmentation_only_seeds_table_leaves_out_what_reads_untrained_parts(t
     assert saved["overrides"] == ["train.num_objects=3", *SEGMENTATION_ONLY]
     row = saved["rows"][0]
     assert {"fg_ari_7_r1", "shared_7_r1", "ncs_4", "ncs_slot_4", "heldout_error_4_r8"} <= set(row)
+    # NCS with one slot-attention pass too (the paper's reading), on each state
+    assert {"ncs_4_r1", "ncs_4_r1_ci", "ncs_slot_4_r1"} <= set(row) and "ncs_4_r1_constraints" not in row
     split = {c.split("_", 1)[1] for c in row if c.startswith("split_") and not c.startswith("split_r")}
     assert split == set(SPLIT_METRICS_SEGMENTATION)
     assert not any(m in c for c in row for m in ("moved_slot", "render_", "dvae_floor", "predicted_"))

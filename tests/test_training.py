@@ -340,17 +340,19 @@ def test_schedules_and_batch_order():
     assert lr_at(14_999, cfg) == pytest.approx(1e-4)
     assert lr_at(29_999, cfg) == lr_at(100_000, cfg) == pytest.approx(2e-4)
     red = get_preset("reduced")
-    main = red.train.main_steps()
-    assert lr_at(main - 1, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
     start = starts(red)
-    assert start["dynamics"] == main + red.train.polish_steps == 3700
-    assert start["render_masks"] == 3700 + red.train.dynamics_steps == 5700
-    assert start["refit"] == 5700 + red.train.render_steps == 9700
-    assert red.train.total_steps() == 9700 + red.train.refit_steps == 11700
-    assert lr_at(main, red) == lr_at(3699, red) == red.train.polish_lr
-    assert lr_at(3700, red) == lr_at(5699, red) == red.train.dynamics_lr
-    assert lr_at(5700, red) == lr_at(9699, red) == red.train.render_lr
-    assert lr_at(9700, red) == lr_at(11699, red) == red.train.dynamics_lr
+    main = start["main"]
+    assert main == red.train.dvae_warmup_steps + 4 * 800 == 3800       # the dVAE, then four starts
+    # the schedule's main_steps() count the dVAE warm-up among them
+    assert start["polish"] == main + red.train.main_steps() - red.train.dvae_warmup_steps == 5388
+    assert lr_at(5387, red) == pytest.approx(0.1 * red.train.lr, rel=1e-3)   # end of the cosine
+    assert start["dynamics"] == 5388 + red.train.polish_steps == 6588
+    assert start["render_masks"] == 6588 + red.train.dynamics_steps == 10588
+    assert start["render"] == 10588 + red.train.render_mask_steps == 11588
+    assert red.train.total_steps() == 10588 + red.train.render_steps == 12588
+    assert lr_at(5388, red) == lr_at(6587, red) == red.train.polish_lr
+    assert lr_at(6588, red) == lr_at(10587, red) == red.train.dynamics_lr
+    assert lr_at(10588, red) == lr_at(12587, red) == red.train.render_lr
     order = BatchOrder(10, 4, seed=0)
     stream = [i for s in range(5) for i in order(s)]          # 20 = two full permutations
     assert sorted(stream[:10]) == list(range(10)) and sorted(stream[10:]) == list(range(10))
@@ -365,12 +367,12 @@ def test_the_paper_trains_in_one_phase_and_reduced_in_seven():
     assert main.trains == SLATE_PARTS and main.augment == "none" and main.position_prior == 0.0
     red = get_preset("reduced")
     run = phases(red)
-    assert [p.name for p in run] == ["dvae_warmup", "main", "polish", "dynamics", "render_masks", "render", "refit"]
-    assert [p.loss for p in run] == ["dvae", "slate", "slate", "dynamics", "render_masks", "render", "dynamics"]
+    assert [p.name for p in run] == ["dvae_warmup", "starts", "main", "polish", "dynamics", "render_masks", "render"]
+    assert [p.loss for p in run] == ["dvae", "mixture", "slate", "mixture", "dynamics", "render_masks", "render"]
     assert run[0].start == 0 and run[-1].end == red.train.total_steps()
     assert all(a.end == b.start for a, b in zip(run, run[1:]))
     assert run[0].lr == 0.0 and run[0].trains == ("dvae",)    # the dVAE alone ...
-    assert run[2].dvae_lr == 0.0 and "dvae" not in run[2].trains   # ... and frozen from the polish on
+    assert run[3].dvae_lr == 0.0 and "dvae" not in run[3].trains   # ... and frozen from the polish on
     assert [p.position_prior for p in run] == [0.0] * 4 + [red.slots.position_prior] * 3
     # SLATE_PARTS and the renderer are every part of the model
     assert {k.split(".")[0] for k in DSlate(red).state_dict()} == set(SLATE_PARTS) | {"renderer"}

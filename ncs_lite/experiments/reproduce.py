@@ -292,7 +292,8 @@ def _ncs_columns(folder: Path, model, ckpt_hash: str, ncs, suffix: str, env: str
     """A seed's columns for one state kind (`ncs.state`; `suffix` names its columns): the
     graph from the buffer's first `graph_episodes` episodes, then NCS on `episodes` seeded
     tasks per count in `objects` (complete goals, 4x) with its interval, constraints
-    satisfied and the shares of its decisions."""
+    satisfied and the shares of its decisions; and NCS reading each scene with one pass of
+    slot attention (`ncs.restarts` 1, the paper's reading; columns `..._r1`)."""
     graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
     graph_key = {"checkpoint": ckpt_hash, "episodes": graph_episodes, "ncs": to_dict(ncs),
                  "code": source_hash(*STAGE_CODE)}
@@ -302,18 +303,20 @@ def _ncs_columns(folder: Path, model, ckpt_hash: str, ncs, suffix: str, env: str
            f"coverage{suffix}": round(graph.info.get("coverage", float("nan")), 4)}
     for k in objects:
         tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
-
-        def run_ncs():
-            return summarize(evaluate(agent_factory("ncs", graph=graph, model=model, ncs=ncs), tasks, "ncs"))[0]
-
-        s = _stage(folder / f"ncs{suffix.replace('_', '-')}-k{k}.json",
-                   {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks)}, run_ncs)
-        row[f"ncs{suffix}_{k}"] = s["success"]
-        row[f"ncs{suffix}_{k}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
-        _constraints(row, f"ncs{suffix}_{k}", s)
-        row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
-        for share in ("noop", "placed", "picked_nothing", "refused"):
-            row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
+        for reading, tail in ((ncs, ""), (replace(ncs, restarts=1), "_r1")):
+            s = _stage(folder / f"ncs{suffix}-k{k}{tail}.json".replace("_", "-"),
+                       {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks), "restarts": reading.restarts},
+                       lambda reading=reading: summarize(evaluate(agent_factory("ncs", graph=graph, model=model,
+                                                                                ncs=reading), tasks, "ncs"))[0])
+            column = f"ncs{suffix}_{k}{tail}"
+            row[column] = s["success"]
+            row[f"{column}_ci"] = f"[{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+            if tail:
+                continue
+            _constraints(row, column, s)
+            row[f"random_fraction{suffix}_{k}"] = round(s["random_fraction"], 3)
+            for share in ("noop", "placed", "picked_nothing", "refused"):
+                row[f"{share}_fraction{suffix}_{k}"] = round(s[f"{share}_fraction"], 3)
     return row
 
 

@@ -22,8 +22,9 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import (MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV, SLOT_INITS, SLOT_POSITION,
-                      SLOT_POSITION_BY_ENV, SLOT_POSITIONS, NCSConfig)
+from ..config import (EXTRA_SLOTS, EXTRA_SLOTS_BY_ENV, MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV,
+                      SLOT_INIT, SLOT_INIT_BY_ENV, SLOT_INITS, SLOT_POSITION, SLOT_POSITION_BY_ENV, SLOT_POSITIONS,
+                      NCSConfig)
 from ..data import load_buffer
 from ..workers import map_jobs
 
@@ -38,6 +39,21 @@ def acting_restarts(ncs, model) -> int:
     if ncs.restarts is not None:
         return ncs.restarts
     return RESTARTS_BY_ENV.get(model_env(model), RESTARTS)
+
+
+def acting_slot_init(ncs, model) -> str:
+    """Where an agent's first slot-attention start begins: `ncs.slot_init`, or when it is None
+    that of the env the model was trained on (SLOT_INIT_BY_ENV; SLOT_INIT otherwise)."""
+    return ncs.slot_init or SLOT_INIT_BY_ENV.get(model_env(model), SLOT_INIT)
+
+
+def acting_extra_slots(ncs, model) -> int:
+    """The slots an agent reads a scene with beyond one per object: `ncs.extra_slots`, or when
+    it is None those of the env the model was trained on (EXTRA_SLOTS_BY_ENV; EXTRA_SLOTS, the
+    floor's, otherwise)."""
+    if ncs.extra_slots is not None:
+        return ncs.extra_slots
+    return EXTRA_SLOTS_BY_ENV.get(model_env(model), EXTRA_SLOTS)
 
 
 def acting_masks(ncs, model) -> str:
@@ -63,15 +79,16 @@ def acting_slot_position(ncs, model) -> str:
 def scene_slots(model, num_objects: int, ncs=None) -> int:
     """The slots a scene of `num_objects` objects is read with: `ncs.slots` when set (a fixed
     count: the reader is not told how many objects there are), else one per object plus
-    `ncs.extra_slots` (the floor's), at least the model's trained K; slot states read from the
-    cells each slot wins (`slot_position` "assigned") get no more than that, since a spare slot
-    would win a few cells of a cube (SLOT_POSITION_BY_ENV). `ncs` None: NCSConfig()'s reading
-    (one slot per object and the floor's, at least K). Used by NCS, NF and MPC
-    (`evaluation.learned_perception`) and by every measure that reads held-out scenes."""
-    ncs = ncs or NCSConfig()
+    `acting_extra_slots` (the floor's and any spare), at least the model's trained K; slot
+    states read from the cells each slot wins (`slot_position` "assigned") get no more than
+    that, since a spare slot would win a few cells of a cube (SLOT_POSITION_BY_ENV). `ncs`
+    None: the measures' reading, one slot per object and the floor's, at least K, on every
+    env. Used by NCS, NF and MPC (`evaluation.learned_perception`), by graphs, and by every
+    measure that reads held-out scenes."""
+    ncs = ncs or NCSConfig(extra_slots=EXTRA_SLOTS)
     if ncs.slots is not None:
         return ncs.slots
-    slots = num_objects + ncs.extra_slots
+    slots = num_objects + acting_extra_slots(ncs, model)
     if ncs.state == "slot" and acting_slot_position(ncs, model) in WON_CELL_READS:
         return slots
     trained = getattr(getattr(model, "cfg", None), "slots", None)     # stand-in models in tests declare no K
@@ -286,7 +303,7 @@ def graph_perception(ncs, model=None, num_slots: int | None = None):
         return OraclePerception(ORACLE_STATES[ncs.state])
     return DSlatePerception(model, iterations=ncs.iterations, num_slots=num_slots, restarts=ncs.graph_restarts,
                             state=ncs.state, slot_position=ncs.slot_position, masks=ncs.masks,
-                            slot_init=ncs.slot_init)
+                            slot_init=acting_slot_init(ncs, model))
 
 
 def slot_read(perception) -> dict:

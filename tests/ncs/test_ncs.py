@@ -687,10 +687,12 @@ def test_assigned_slot_states_read_the_cells_each_slot_wins(tmp_path):
     assert read.describe()["slot_position"] == "assigned"
     masks = [DSlatePerception(model, slot_position=p).describe() for p in ("assigned", "attention")]
     assert masks[0] == masks[1]                         # a mask pass reads no position: one cache entry
-    # block-rearrange's default: assigned, and no spare slot (ci's K is 3: 1 object + 1 < 3)
+    # block-rearrange's default: assigned, with exactly one slot per object, the floor's and the
+    # env's spare one, never raised to K (1 object: 3 slots; with extra_slots 1, 2 < ci's K of 3)
     model.checkpoint_info = {"env": "block-rearrange"}
     slot = learned_perception(model, 1, NCSConfig(state="slot"))
-    assert (slot.slot_position, slot.num_slots) == ("assigned", 2)
+    assert (slot.slot_position, slot.num_slots) == ("assigned", 3)
+    assert learned_perception(model, 1, NCSConfig(state="slot", extra_slots=1)).num_slots == 2
     assert learned_perception(model, 1, NCSConfig(state="slot", slot_position="attention")).num_slots == 3
     assert learned_perception(model, 1).num_slots == 3                             # masks: at least K
     env = TaskSet(num_objects=1, episodes=1).make_env()
@@ -789,10 +791,36 @@ def test_masks_default_to_the_models_env():
         DSlatePerception(plain, masks="pixel")
     with pytest.raises(ValueError, match="ncs.masks must be one of 'attention', 'pixel' or None \\(the env's\\), got 'edge'"):
         NCSConfig(masks="edge").validate()
-    with pytest.raises(ValueError, match="ncs.slot_init must be one of 'random', 'farthest', got 'grid'"):
+    with pytest.raises(ValueError, match="ncs.slot_init must be one of 'random', 'farthest' or None \\(the env's\\), "
+                                         "got 'grid'"):
         NCSConfig(slot_init="grid").validate()
     with pytest.raises(ValueError, match="slot_init must be one of 'random', 'farthest', got 'grid'"):
         DSlatePerception(model, slot_init="grid")
+
+
+def test_block_rearrange_reads_from_the_farthest_start_with_a_spare_slot():
+    """`ncs.slot_init` and `ncs.extra_slots` None read a block-rearrange model from the
+    farthest-point start with two slots beyond one per object, every other env's from a draw
+    with the floor's slot alone; a value set is kept, and the measures (no `ncs`) read one slot
+    per object and the floor's on every env."""
+    from ncs_lite.config import get_preset
+    from ncs_lite.evaluation import learned_perception
+    from ncs_lite.models import DSlate
+    from ncs_lite.ncs.perception import acting_extra_slots, acting_slot_init, scene_slots
+
+    model = DSlate(get_preset("ci")).eval()                 # K = 3
+    for env, start, extra in (("block-rearrange", "farthest", 2), ("robogym-rearrange", "random", 1),
+                              ("block-stacking", "random", 1)):
+        model.checkpoint_info = {"env": env}
+        assert (acting_slot_init(NCSConfig(), model), acting_extra_slots(NCSConfig(), model)) == (start, extra)
+        assert acting_slot_init(NCSConfig(slot_init="random"), model) == "random"
+        assert acting_extra_slots(NCSConfig(extra_slots=0), model) == 0
+        assert scene_slots(model, 7, NCSConfig()) == 7 + extra
+        assert scene_slots(model, 7) == 8                   # the measures' reading
+        reader = learned_perception(model, 7)
+        assert (reader.slot_init, reader.num_slots) == (start, 7 + extra)
+    with pytest.raises(ValueError, match="ncs.extra_slots must be an integer >= 0, got -1"):
+        NCSConfig(extra_slots=-1).validate()
 
 
 def test_step_trace_classifies_every_step_and_names_the_selected_object(oracle_graph):
