@@ -597,7 +597,10 @@ def _reduced() -> DSlateConfig:
 
 
 def _ci() -> DSlateConfig:
-    """The `reduced` model's structure at toy widths: seconds per run, every code path."""
+    """The `reduced` model's structure at toy widths: seconds per run. It keeps the refit
+    phase, which `reduced` no longer runs, and leaves out the segmentation starts, implicit
+    differentiation and the polish on segmentation alone, which the tests of those fields set
+    (tests/test_training.py, tests/models/test_models.py)."""
     return DSlateConfig(
         name="ci",
         dvae=DVAEConfig(vocab_size=16, hidden=16, tau_steps=20, lr=1e-3, foreground_weight=5.0),
