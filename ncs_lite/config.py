@@ -680,6 +680,11 @@ SLOT_POSITION_BY_ENV = {"block-rearrange": "assigned", "block-stacking": "base"}
 # docs/recipe.md, "Pixel masks")
 MASKS = "attention"
 MASKS_BY_ENV = {"block-stacking": "pixel"}
+# NCSConfig fields whose None means "the default of the env the model was trained on":
+# (that default by env, the default of every other env and of a model that names none)
+NCS_ENV_DEFAULTS = {"restarts": (RESTARTS_BY_ENV, RESTARTS), "slot_init": (SLOT_INIT_BY_ENV, SLOT_INIT),
+                    "extra_slots": (EXTRA_SLOTS_BY_ENV, EXTRA_SLOTS), "masks": (MASKS_BY_ENV, MASKS),
+                    "slot_position": (SLOT_POSITION_BY_ENV, SLOT_POSITION)}
 # the task sets of an env's comparison (`reproduce baselines`) where they differ from
 # comparison.run_comparison's defaults (4-7 objects, complete and partial goals): block-stacking's
 # towers from 3 to 6 cubes, complete goals
@@ -687,6 +692,13 @@ TASKS_BY_ENV = {"block-stacking": {"counts": (3, 4, 5, 6), "goals": ("complete",
 # the episodes of the 4-object buffer a graph reads (comparison.graph_episodes_of): continuous
 # positions need more exemplars per node than grid cells
 GRAPH_EPISODES_BY_ENV = {"robogym-rearrange": 20000}
+
+
+def ncs_env_default(field: str, env: str | None):
+    """The value an NCSConfig `field` left at None takes for a model trained on `env`
+    (NCS_ENV_DEFAULTS; `env` None: a model that names no env)."""
+    by_env, elsewhere = NCS_ENV_DEFAULTS[field]
+    return by_env.get(env, elsewhere)
 
 
 def get_preset(name: str, env: str = "block-rearrange") -> DSlateConfig:

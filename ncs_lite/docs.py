@@ -30,7 +30,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from .config import EXTRA_SLOTS, EXTRA_SLOTS_BY_ENV, SLOT_INIT, SLOT_INIT_BY_ENV, STRESS_TASKS, NCSConfig
+from .config import NCS_ENV_DEFAULTS, STRESS_TASKS, NCSConfig, ncs_env_default
 from .envs.block_rearrange import BlockRearrangeConfig
 from .utils import ENV_SHORT_NAMES, NOTEBOOK_ENV_SUFFIX, REPO_DIR, atomic_write_text, split_notebook_run
 
@@ -55,9 +55,6 @@ DEFAULT_PRESET = "reduced"
 SHIPPED_ASSETS = "ncs_lite/assets/"    # a table read from a shipped asset used the command's default
 # NCSConfig fields that `reproduce seeds` sets from the env (Tables 3-4): never overrides
 ENV_NCS_FIELDS = ("clusters", "edge_action", "state")
-# NCSConfig fields whose None is the env's default: (that default by env, elsewhere); a table
-# that recorded its env's value was read with the default
-ENV_DEFAULT_NCS = {"extra_slots": (EXTRA_SLOTS_BY_ENV, EXTRA_SLOTS), "slot_init": (SLOT_INIT_BY_ENV, SLOT_INIT)}
 
 # --------------------------------------------------------------------- what a column means
 # (pattern over a column name, label, kind, which direction is better: "high", "low" or None).
@@ -270,10 +267,9 @@ def _ncs_overrides(table: dict) -> list[str]:
     for field, value in sorted((table.get("ncs") or {}).items()):
         if field in ENV_NCS_FIELDS or not hasattr(default, field):
             continue
-        env_default = getattr(default, field)
-        if field in ENV_DEFAULT_NCS:
-            by_env, elsewhere = ENV_DEFAULT_NCS[field]
-            env_default = by_env.get(table.get("env", "block-rearrange"), elsewhere)
+        # a table that recorded its env's value for a field whose None is the env's default
+        # was read with the default
+        env_default = ncs_env_default(field, _env(table)) if field in NCS_ENV_DEFAULTS else None
         if value not in (getattr(default, field), env_default):
             out.append(f"ncs.{field}={'none' if value is None else value}")
     recorded = [o for o in table.get("ncs_overrides") or [] if o not in out]

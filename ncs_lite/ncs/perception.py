@@ -22,9 +22,8 @@ import numpy as np
 import torch
 
 from ..cache import buffer_digest, cached, code_digest, digest
-from ..config import (EXTRA_SLOTS, EXTRA_SLOTS_BY_ENV, MASK_READS, MASKS, MASKS_BY_ENV, RESTARTS, RESTARTS_BY_ENV,
-                      SLOT_INIT, SLOT_INIT_BY_ENV, SLOT_INITS, SLOT_POSITION, SLOT_POSITION_BY_ENV, SLOT_POSITIONS,
-                      NCSConfig)
+from ..config import (EXTRA_SLOTS, MASK_READS, RESTARTS, RESTARTS_BY_ENV, SLOT_INITS, SLOT_POSITIONS, NCSConfig,
+                      ncs_env_default)
 from ..data import load_buffer
 from ..workers import map_jobs
 
@@ -38,13 +37,13 @@ def acting_restarts(ncs, model) -> int:
     the env the model was trained on (RESTARTS_BY_ENV; RESTARTS for a model that names none)."""
     if ncs.restarts is not None:
         return ncs.restarts
-    return RESTARTS_BY_ENV.get(model_env(model), RESTARTS)
+    return ncs_env_default("restarts", model_env(model))
 
 
 def acting_slot_init(ncs, model) -> str:
     """Where an agent's first slot-attention start begins: `ncs.slot_init`, or when it is None
     that of the env the model was trained on (SLOT_INIT_BY_ENV; SLOT_INIT otherwise)."""
-    return ncs.slot_init or SLOT_INIT_BY_ENV.get(model_env(model), SLOT_INIT)
+    return ncs.slot_init or ncs_env_default("slot_init", model_env(model))
 
 
 def acting_extra_slots(ncs, model) -> int:
@@ -53,7 +52,7 @@ def acting_extra_slots(ncs, model) -> int:
     floor's, otherwise)."""
     if ncs.extra_slots is not None:
         return ncs.extra_slots
-    return EXTRA_SLOTS_BY_ENV.get(model_env(model), EXTRA_SLOTS)
+    return ncs_env_default("extra_slots", model_env(model))
 
 
 def acting_masks(ncs, model) -> str:
@@ -67,7 +66,7 @@ def default_masks(model) -> str:
     what pixel masks need (slot attention's otherwise)."""
     if getattr(model, "mixture", None) is None:
         return "attention"
-    return MASKS_BY_ENV.get(model_env(model), MASKS)
+    return ncs_env_default("masks", model_env(model))
 
 
 def acting_slot_position(ncs, model) -> str:
@@ -105,7 +104,7 @@ def default_slot_position(model) -> str:
     the model has position features to read ("attention" otherwise)."""
     if not model.cfg.slots.position_state:
         return "attention"
-    return SLOT_POSITION_BY_ENV.get(model_env(model), SLOT_POSITION)
+    return ncs_env_default("slot_position", model_env(model))
 
 
 class Entities(NamedTuple):
