@@ -112,11 +112,32 @@ fig10: $(STAMP)
 fig11: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(PY) -m ncs_lite reproduce fig11 --preset $(PRESET) --executor $(EXECUTOR)
 
-# The shipped assets of the baselines and oracles, each made by one command from the buffer the
-# shipped dSLATE and graphs were made from (5000 episodes); only missing files are made.
+# An env's shipped dSLATE is the training seed its seeds table's shipping rule picked
+# (`shipped_seed` in figures/tables/seeds_*.json: the lowest held-out reconstruction error):
+# that table's own run of the seed (same command, recipe and buffer) when it is there, else the
+# seed trained anew. $(call ship_dslate,SEED,RUN,TABLE,TRAIN_ARGS,VAR): RUN is the run's path
+# without its suffix, TABLE the seeds table's file, TRAIN_ARGS `train`'s env and buffer, VAR
+# the variable that names the seed.
+shipped_seed = $(shell python3 -c "import json; print(json.load(open('figures/tables/$(1)'))['shipped_seed'])" 2>/dev/null)
+define ship_dslate
+@test -n "$(1)" || { echo "make: figures/tables/$(3) names no shipped_seed; run its 'python -m ncs_lite reproduce seeds' (docs/results.md) or pass $(5)=N"; exit 2; }
+@if [ -f $(2).pt ]; then \
+  echo "make: shipping the seeds table's run of seed $(1) ($(2).pt)"; \
+  cp $(2).csv $(basename $@).csv.tmp && mv $(basename $@).csv.tmp $(basename $@).csv && \
+  cp $(2).pt $@.tmp && mv $@.tmp $@; \
+else $(PY) -m ncs_lite train $(4) --preset reduced --out $@ --seed $(1); fi
+endef
+
+# The shipped assets of block-rearrange: the dSLATE (`BR_SEED` of the seeds table, whose runs
+# `BR_RUNS` holds), its graphs, the baselines and oracles, each made by one command from the
+# buffer the shipped dSLATE was trained on (5000 episodes); only missing files are made.
 ASSETS      := ncs_lite/assets
 TRAIN_DATA  := .cache/buffers/block-rearrange-k4-e5000-s0-v1
 GRAPH_DATA  := $(TRAIN_DATA)
+BR_SEED     ?= $(call shipped_seed,seeds_reduced.json)
+BR_RUNS     ?= .cache/seeds
+$(ASSETS)/dslate_block_rearrange_reduced.pt: | $(TRAIN_DATA)/manifest.json
+	$(call ship_dslate,$(BR_SEED),$(BR_RUNS)/reduced-seed-$(BR_SEED)/dslate,seeds_reduced.json,--data $(TRAIN_DATA),BR_SEED)
 BASELINE_ASSETS := $(ASSETS)/graph_block_rearrange_oracle.pt $(ASSETS)/graph_block_rearrange_oracle_position.pt \
   $(ASSETS)/nf_graph_block_rearrange_reduced.pt $(ASSETS)/nf_graph_block_rearrange_oracle.pt \
   $(ASSETS)/bc_block_rearrange_reduced.pt $(ASSETS)/iql_block_rearrange_reduced.pt
@@ -124,9 +145,9 @@ BLOCK_GRAPHS := $(ASSETS)/graph_block_rearrange_reduced.pt $(ASSETS)/graph_block
 .PHONY: block-graphs
 block-graphs: $(BLOCK_GRAPHS)
 baseline-assets: $(BASELINE_ASSETS)
-$(ASSETS)/graph_block_rearrange_reduced.pt: | $(GRAPH_DATA)/manifest.json
+$(ASSETS)/graph_block_rearrange_reduced.pt: | $(ASSETS)/dslate_block_rearrange_reduced.pt $(GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --checkpoint $(ASSETS)/dslate_block_rearrange_reduced.pt --data $(GRAPH_DATA) --clusters 30 --out $@
-$(ASSETS)/graph_block_rearrange_reduced_slot.pt: | $(GRAPH_DATA)/manifest.json
+$(ASSETS)/graph_block_rearrange_reduced_slot.pt: | $(ASSETS)/dslate_block_rearrange_reduced.pt $(GRAPH_DATA)/manifest.json
 	$(PY) -m ncs_lite graph --checkpoint $(ASSETS)/dslate_block_rearrange_reduced.pt --data $(GRAPH_DATA) --clusters 30 \
 	  --state slot --out $@
 $(TRAIN_DATA)/manifest.json: | $(STAMP)
@@ -153,8 +174,7 @@ $(ASSETS)/iql_block_rearrange_reduced.pt: | $(TRAIN_DATA)/manifest.json
 # Training is about 25 min on 2 cores; only missing files are made.
 RG_DATA  := .cache/buffers/robogym-rearrange-k4-e5000-s0-v1
 RG_GRAPH_DATA := .cache/buffers/robogym-rearrange-k4-e20000-s0-v1
-RG_SEED  ?= $(shell python3 -c "import json; print(json.load(open('figures/tables/seeds_robogym_reduced.json'))['shipped_seed'])" 2>/dev/null)
-# the seeds table's own run of that seed (same command, recipe and buffer) is shipped when present
+RG_SEED  ?= $(call shipped_seed,seeds_robogym_reduced.json)
 RG_SEED_RUN = .cache/seeds-robogym-rearrange/reduced-seed-$(RG_SEED)/dslate
 RG_ASSETS := $(ASSETS)/dslate_robogym_rearrange_reduced.pt $(ASSETS)/graph_robogym_rearrange_reduced_slot.pt \
   $(ASSETS)/graph_robogym_rearrange_oracle_position.pt
@@ -163,12 +183,7 @@ robogym-assets: $(RG_ASSETS)
 $(RG_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 5000 --seed 0 --out $(RG_DATA)
 $(ASSETS)/dslate_robogym_rearrange_reduced.pt: | $(RG_DATA)/manifest.json
-	@test -n "$(RG_SEED)" || { echo "make: figures/tables/seeds_robogym_reduced.json names no shipped_seed; run 'python -m ncs_lite reproduce seeds --env robogym-rearrange' or pass RG_SEED=N"; exit 2; }
-	@if [ -f $(RG_SEED_RUN).pt ]; then \
-	  echo "make: shipping the seeds table's run of seed $(RG_SEED) ($(RG_SEED_RUN).pt)"; \
-	  cp $(RG_SEED_RUN).csv $(basename $@).csv.tmp && mv $(basename $@).csv.tmp $(basename $@).csv && \
-	  cp $(RG_SEED_RUN).pt $@.tmp && mv $@.tmp $@; \
-	else $(PY) -m ncs_lite train --env robogym-rearrange --preset reduced --data $(RG_DATA) --out $@ --seed $(RG_SEED); fi
+	$(call ship_dslate,$(RG_SEED),$(RG_SEED_RUN),seeds_robogym_reduced.json,--env robogym-rearrange --data $(RG_DATA),RG_SEED)
 $(RG_GRAPH_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m ncs_lite collect --env robogym-rearrange --episodes 20000 --seed 0 --out $(RG_GRAPH_DATA)
 # fig9 rebuilds the shipped graph's variants from this buffer (`data.find_buffer`: by manifest hash)

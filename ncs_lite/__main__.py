@@ -351,6 +351,9 @@ def _add_reproduce(sub) -> None:
                    "keeps its rows of other seeds measured with the same settings and code)")
     p.add_argument("--runs", default=None, help="seeds: folder of the per-seed runs (default: "
                    "<cache>/seeds)")
+    p.add_argument("--task-seed", type=int, default=0,
+                   help="seeds: the seed of the tasks NCS is measured on (default 0, every table's; another: "
+                   "tasks no table has used, as `figures/tables/shipped/` measures the shipped seed on)")
     p.add_argument("--segmentation-only", action="store_true",
                    help="seeds: train segmentation alone, in about half a run's time (the --set list "
                    "ncs_lite.experiments.reproduce.SEGMENTATION_ONLY): for ablations of what concerns segmentation")

@@ -298,6 +298,8 @@ def table_command(path: str, table: dict) -> str:
             args += ["--objects", *map(str, objects)]
         if table.get("episodes", DEFAULT_EPISODES) != DEFAULT_EPISODES:
             args += ["--episodes", str(table["episodes"])]
+        if table.get("task_seed"):
+            args += ["--task-seed", str(table["task_seed"])]
         recipe = list(table.get("overrides") or [])
         for override in recipe + _ncs_overrides(table):
             args += ["--set", override]
@@ -516,7 +518,8 @@ def _describe(path: str, table: dict) -> str:
     if folder.startswith("variants"):
         what += " A variant, not adopted: its overrides are in the command."
     elif folder == "shipped":
-        what += " The shipped checkpoint alone (its run folder's seed 0)."
+        what += (" The shipped seed alone" + (f", on tasks no other table uses (task seed {table['task_seed']})"
+                                               if table.get("task_seed") else "") + ".")
     return what
 
 

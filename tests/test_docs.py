@@ -108,6 +108,10 @@ def test_command_is_rebuilt_from_the_tables_metadata():
     old["ncs"]["restarts"] = 8
     assert table_command("seeds_reduced.json", old) == \
         "python -m ncs_lite reproduce seeds --seeds 0 1 --set ncs.restarts=8"
+    # the shipped seed measured on tasks no other table uses
+    assert table_command("shipped/seeds_reduced.json", {**old, "seeds": [2], "task_seed": 1}) == (
+        "python -m ncs_lite reproduce seeds --seeds 2 --task-seed 1 --set ncs.restarts=8 "
+        "--out-dir figures/tables/shipped")
     assert table_command("baselines_reduced.json", COMPARISON) == \
         "python -m ncs_lite reproduce baselines --episodes 50 --mpc-episodes 25"
     assert table_command("robogym_reduced.json", SINGLE) == "python -m ncs_lite reproduce robogym"

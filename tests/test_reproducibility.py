@@ -275,6 +275,8 @@ def test_bad_files_and_arguments_get_one_line_errors(tmp_path, capsys):
         (["reproduce", "robogym", "--set", "ncs.clusters=9"], "the robogym table does not read --set"),
         (["reproduce", "baselines", "--objects", "4"], "the baselines table does not read --objects"),
         (["reproduce", "clusters", "--segmentation-only"], "the clusters table does not read --segmentation-only"),
+        (["reproduce", "clusters", "--task-seed", "3"], "the clusters table does not read --task-seed"),
+        (["reproduce", "seeds", "--task-seed", "-1"], "--task-seed must be an integer >= 0, got -1"),
         (["reproduce", "seeds", "--seeds", "0", "0"], "--seeds must be distinct, got [0, 0]"),
         (["evaluate", "--method", "random", "--set", "ncs.clusters=99", "--episodes", "1"],
          "--set ncs.clusters=99: evaluate reads a built graph"),

@@ -128,14 +128,17 @@ def trains_segmentation_only(cfg) -> bool:
 def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | None = None,
                 overrides=(), episodes: int = 100, objects=None, images: int | None = None,
                 graph_episodes: int | None = None, clusters: int | None = None,
-                env: str = "block-rearrange", out_dir=None, allow_dirty: bool = False) -> dict:
+                env: str = "block-rearrange", out_dir=None, allow_dirty: bool = False,
+                task_seed: int = 0) -> dict:
     """Train `preset` (+ `overrides`) once per seed on the buffer of `train.num_objects` objects
     (4 in every preset; 5,000 episodes, buffer seed 0: the shipped recipe), then for each seed:
     the type/state split's metrics on 100 held-out episodes (`factorization_scores`), fg-ARI at 4 and 7 objects with one start
     and with NCS's restarts, and for each state kind (mask, slot) the graph from the buffer's
     first `graph_episodes` (default `comparison.graph_episodes`) episodes (`clusters` nodes)
-    and NCS success on `episodes` seeded tasks per count in `objects` (complete goals, horizon 4x),
-    with the share of constraints satisfied beside it (`ncs_<k>_constraints`).
+    and NCS success on `episodes` tasks per count in `objects` (complete goals, horizon 4x; the
+    tasks of `task_seed`, 0 in every table but those that measure a model on tasks no other
+    table has used, `shipped/`), with the share of constraints satisfied beside it
+    (`ncs_<k>_constraints`).
     On robogym-rearrange (`env`): Table 3's slot states only, Table 4's 45 nodes, 4-7 objects,
     and per count the position oracle's and Random's success (the same for every seed). Each
     row has the seed's held-out reconstruction error (`heldout_reconstruction_error`) at 4
@@ -167,11 +170,11 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
     data = cached_buffer(TRAIN_EPISODES[preset], env=env, num_objects=recipe.train.num_objects, seed=0)
     name = table_name("seeds", env, preset)
     provenance(table_dir(out_dir) / f"{name}.json", allow_dirty)      # a dirty tree is refused before hours of training
-    refs = {} if block else _reference_rows(env, runs, base, objects, episodes, graph_episodes)
+    refs = {} if block else _reference_rows(env, runs, base, objects, episodes, graph_episodes, task_seed)
     settings = {"env": env, "preset": preset, "overrides": list(overrides), "buffer": relative_to_repo(data),
                 "graph_episodes": graph_episodes, "episodes": episodes, "objects": list(objects), "images": images,
                 "clusters": base.clusters, "ncs": to_dict(base), "ncs_overrides": ncs_overrides,
-                "code": source_hash(*STAGE_CODE)}
+                "task_seed": task_seed, "code": source_hash(*STAGE_CODE)}
     rows, table = [], {}
     for seed in seeds:
         folder = runs / f"{preset}-seed-{seed}"
@@ -185,7 +188,8 @@ def seeds_table(preset: str = "reduced", seeds=(0, 1, 2), runs: str | Path | Non
         for state in states:
             ncs = ncs_config(ncs_overrides, state=state, **env_ncs)
             suffix = "_slot" if block and state == "slot" else ""
-            row.update(_ncs_columns(folder, model, ckpt_hash, ncs, suffix, env, graph_episodes, objects, episodes))
+            row.update(_ncs_columns(folder, model, ckpt_hash, ncs, suffix, env, graph_episodes, objects, episodes,
+                                    task_seed))
         row.update(refs)        # the references of the same tasks, which no training seed changes
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -288,10 +292,10 @@ def _segmentation_columns(folder: Path, model, ckpt_hash: str, env: str, images:
 
 
 def _ncs_columns(folder: Path, model, ckpt_hash: str, ncs, suffix: str, env: str, graph_episodes: int,
-                 objects, episodes: int) -> dict:
+                 objects, episodes: int, task_seed: int = 0) -> dict:
     """A seed's columns for one state kind (`ncs.state`; `suffix` names its columns): the
-    graph from the buffer's first `graph_episodes` episodes, then NCS on `episodes` seeded
-    tasks per count in `objects` (complete goals, 4x) with its interval, constraints
+    graph from the buffer's first `graph_episodes` episodes, then NCS on `episodes` tasks of
+    `task_seed` per count in `objects` (complete goals, 4x) with its interval, constraints
     satisfied and the shares of its decisions; and NCS reading each scene with one pass of
     slot attention (`ncs.restarts` 1, the paper's reading; columns `..._r1`)."""
     graph_path = folder / f"graph{suffix.replace('_', '-')}.pt"
@@ -302,9 +306,9 @@ def _ncs_columns(folder: Path, model, ckpt_hash: str, ncs, suffix: str, env: str
     row = {f"graph_edges{suffix}": graph.num_edges,
            f"coverage{suffix}": round(graph.info.get("coverage", float("nan")), 4)}
     for k in objects:
-        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
+        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=task_seed)
         for reading, tail in ((ncs, ""), (replace(ncs, restarts=1), "_r1")):
-            s = _stage(folder / f"ncs{suffix}-k{k}{tail}.json".replace("_", "-"),
+            s = _stage(folder / f"ncs{suffix}-k{k}{tail}{_tasks_tail(task_seed)}.json".replace("_", "-"),
                        {"checkpoint": ckpt_hash, "graph": graph_key, "tasks": repr(tasks), "restarts": reading.restarts},
                        lambda reading=reading: summarize(evaluate(agent_factory("ncs", graph=graph, model=model,
                                                                                 ncs=reading), tasks, "ncs"))[0])
@@ -349,7 +353,14 @@ def _graph_stage(path: Path, key: dict, ncs, model, data, what: str):
     return graph
 
 
-def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_episodes: int) -> dict:
+def _tasks_tail(task_seed: int) -> str:
+    """The tail of a stage file's name for tasks of `task_seed`: none for the tables' tasks
+    (seed 0), so that measuring on other tasks keeps their stages."""
+    return f"_t{task_seed}" if task_seed else ""
+
+
+def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_episodes: int,
+                    task_seed: int = 0) -> dict:
     """The position oracle's (a graph on ground-truth states of the graph buffer) and Random's
     success on the seeds table's tasks, cached in `runs`."""
     oracle_ncs = replace(ncs, slot_position=None)
@@ -358,9 +369,9 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
                          "the position oracle's graph")
     row = {}
     for k in objects:
-        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=0)
+        tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=task_seed)
         for method, kwargs in (("ncs-oracle", {"graph": graph}), ("random", {})):
-            s = _stage(runs / f"{method}-k{k}.json", {"graph": key, "tasks": repr(tasks)},
+            s = _stage(runs / f"{method}-k{k}{_tasks_tail(task_seed).replace('_', '-')}.json", {"graph": key, "tasks": repr(tasks)},
                        lambda: summarize(evaluate(agent_factory(method, ncs=oracle_ncs, **kwargs), tasks, method))[0])
             name = method.replace("-", "_")
             row[f"{name}_{k}"] = s["success"]
@@ -610,7 +621,7 @@ SWEEP_TABLES = ("fig9", *STRESS_TABLES)
 # the options each table reads (`reproduce <table> --help`); any other one given is refused,
 # never silently ignored. FLAG_DEFAULTS: the parser's defaults, i.e. "not given"
 TABLE_FLAGS = {
-    "seeds": ("preset", "seeds", "runs", "overrides", "episodes", "env", "objects", "segmentation_only"),
+    "seeds": ("preset", "seeds", "runs", "overrides", "episodes", "env", "objects", "segmentation_only", "task_seed"),
     "clusters": ("checkpoint", "episodes", "overrides"),
     "baselines": ("preset", "episodes", "mpc_episodes", "env", "overrides"),
     "robogym": ("episodes", "objects", "checkpoint", "graph", "oracle_graph"),
@@ -622,7 +633,7 @@ TABLE_FLAGS = {
 FLAG_DEFAULTS = {"preset": "reduced", "seeds": [0, 1, 2], "runs": None, "checkpoint": None, "graph": None,
                  "oracle_graph": None, "episodes": None, "mpc_episodes": None, "executor": "local",
                  "sweep_folder": None, "env": "block-rearrange", "objects": None, "overrides": [],
-                 "segmentation_only": False}
+                 "segmentation_only": False, "task_seed": 0}
 
 
 def check_table_args(name: str, args) -> None:
@@ -645,6 +656,8 @@ def check_table_args(name: str, args) -> None:
         raise ValueError(f"--seeds must be distinct, got {args.seeds}")
     if any(s < 0 for s in args.seeds):
         raise ValueError(f"--seeds must be integers >= 0, got {args.seeds}")
+    if getattr(args, "task_seed", 0) < 0:
+        raise ValueError(f"--task-seed must be an integer >= 0, got {args.task_seed}")
     if args.objects is not None:
         if name == "stacking" or args.env == "block-stacking":
             config = BlockStackingConfig
@@ -667,7 +680,8 @@ def run_table(name: str, args) -> dict:
     if name == "seeds":
         overrides = [*args.overrides, *(SEGMENTATION_ONLY if getattr(args, "segmentation_only", False) else ())]
         return seeds_table(args.preset, args.seeds, args.runs, overrides, args.episodes or 100,
-                           objects=args.objects, env=args.env, out_dir=args.out_dir, allow_dirty=args.allow_dirty)
+                           objects=args.objects, env=args.env, out_dir=args.out_dir, allow_dirty=args.allow_dirty,
+                           task_seed=getattr(args, "task_seed", 0))
     if name == "clusters":
         return clusters_table(args.checkpoint, episodes=args.episodes or 100, overrides=args.overrides,
                               out_dir=args.out_dir, allow_dirty=args.allow_dirty)
