@@ -32,11 +32,17 @@ def graph():
 
 def kept_restart_masks(model, image, perception):
     """The masks of the restart `infer` keeps, rebuilt by hand: run every restart as its own
-    image (row r of a batch of R copies draws restart r's initial slots) and take the one the
-    model reconstructs best."""
-    R = perception.restarts
+    image (row r of a batch of R copies starts from restart r's initial slots: the first from
+    the farthest-point seeds when the perception's `slot_init` says so, the others drawn from
+    the learned Gaussian with `infer`'s seed) and take the one the model reconstructs best."""
+    R, K = perception.restarts, perception.num_slots
     copies = np.repeat(np.asarray(image)[None], R, 0)
-    r = model.infer(copies, iterations=perception.iterations, num_slots=perception.num_slots, restarts=1)
+    farthest = perception.slot_init == "farthest"
+    init = model.slot_attn.initial_slots(R - farthest, K, torch.Generator(device=model.device).manual_seed(0))
+    if farthest:
+        x = torch.as_tensor(np.asarray(image)[None], device=model.device).float() / 255.0
+        init = torch.cat([model.slot_attn.farthest_point_slots(model._slot_inputs(x), K), init])
+    r = model.infer(copies, iterations=perception.iterations, num_slots=K, init_slots=init)
     err = model.reconstruction_error(torch.as_tensor(copies).float() / 255.0, r.slots, r.attention)
     return r.masks[int(err.argmin())].float(), r.masks[0].float()
 
