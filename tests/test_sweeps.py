@@ -186,7 +186,8 @@ def test_stress_cells_share_fig10s_cells_and_name_the_paper_reading():
     assert len(j11) == len({key(j) for j in j11})                    # each cell once (4x, no noise is shared)
     paper = next(j for j in j10 if j[2]["label"] == "ncs-paper")
     assert {k: getattr(paper[2]["ncs"], k) for k in PAPER_NCS} == PAPER_NCS == {
-        "restarts": 1, "align": "hungarian", "edge_action": "most_common", "dependencies": False}
+        "restarts": 1, "slot_init": "random", "extra_slots": 1, "align": "hungarian", "edge_action": "most_common",
+        "dependencies": False}
     mpcs = {j[2]["label"]: (j[2]["mpc"].horizon, j[1].episodes) for j in j10 if j[0] == "mpc"}
     assert mpcs == {"mpc": (1, 2), "mpc-h2": (2, 2), "mpc-h3": (3, 2)}
     noisy = {j[1].action_noise for j in j11}

@@ -27,12 +27,15 @@ from ..training import obtain_dslate
 
 __all__ = ["COMPARED", "PAPER_NCS", "comparison_assets", "run_comparison"]
 
-# NCS as the paper specifies it: one slot-attention pass per image, Hungarian alignment with
-# every matched pair a constraint, the edge's most common action (the shipped graph keeps its
-# edge labels, so "most_common" acts on it too). The kit's extensions it leaves out: restarts,
-# the "near" pairs, actions read from the transitions' states (ncs/graph.py's docstring), the
-# dependency rules of block-stacking (ncs/dependencies.py).
-PAPER_NCS = {"restarts": 1, "align": "hungarian", "edge_action": "most_common", "dependencies": False}
+# NCS as the paper specifies it: one slot-attention pass per image from slots drawn from the
+# learned Gaussian, one slot per object and the background's, Hungarian alignment with every
+# matched pair a constraint, the edge's most common action (the shipped graph keeps its edge
+# labels, so "most_common" acts on it too). The kit's extensions it leaves out: restarts, the
+# first start seeded on the scene and the spare slot (block-rearrange's reading, config.py's
+# NCS_ENV_DEFAULTS), the "near" pairs, actions read from the transitions' states
+# (ncs/graph.py's docstring), the dependency rules of block-stacking (ncs/dependencies.py).
+PAPER_NCS = {"restarts": 1, "slot_init": "random", "extra_slots": 1, "align": "hungarian",
+             "edge_action": "most_common", "dependencies": False}
 # label: (method, the assets it reads, overrides of the assets' NCSConfig); the legend's order
 COMPARED = {
     "ncs": ("ncs", ("graph", "model"), {}),
