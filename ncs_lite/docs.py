@@ -518,8 +518,10 @@ def _describe(path: str, table: dict) -> str:
     if folder.startswith("variants"):
         what += " A variant, not adopted: its overrides are in the command."
     elif folder == "shipped":
-        what += (" The shipped seed alone" + (f", on tasks no other table uses (task seed {table['task_seed']})"
-                                               if table.get("task_seed") else "") + ".")
+        what += " The shipped seed alone"
+        if table.get("task_seed"):
+            what += f", on tasks no other table uses (task seed {table['task_seed']})"
+        what += "."
     return what
 
 

@@ -356,7 +356,7 @@ def _graph_stage(path: Path, key: dict, ncs, model, data, what: str):
 def _tasks_tail(task_seed: int) -> str:
     """The tail of a stage file's name for tasks of `task_seed`: none for the tables' tasks
     (seed 0), so that measuring on other tasks keeps their stages."""
-    return f"_t{task_seed}" if task_seed else ""
+    return f"-t{task_seed}" if task_seed else ""
 
 
 def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_episodes: int,
@@ -371,7 +371,7 @@ def _reference_rows(env: str, runs: Path, ncs, objects, episodes: int, graph_epi
     for k in objects:
         tasks = TaskSet(env=env, num_objects=k, episodes=episodes, seed=task_seed)
         for method, kwargs in (("ncs-oracle", {"graph": graph}), ("random", {})):
-            s = _stage(runs / f"{method}-k{k}{_tasks_tail(task_seed).replace('_', '-')}.json", {"graph": key, "tasks": repr(tasks)},
+            s = _stage(runs / f"{method}-k{k}{_tasks_tail(task_seed)}.json", {"graph": key, "tasks": repr(tasks)},
                        lambda: summarize(evaluate(agent_factory(method, ncs=oracle_ncs, **kwargs), tasks, method))[0])
             name = method.replace("-", "_")
             row[f"{name}_{k}"] = s["success"]
