@@ -642,7 +642,7 @@ ENV_OVERRIDES = {
     "block-stacking": {
         # the recipe before implicit slot attention and the segmentation starts, which the shipped
         # checkpoint was trained with: the adopted recipe merged stacked cubes of near colours and
-        # solved 0.03 of the 4-cube towers against 0.34 (docs/recipe.md, "block-stacking's recipe")
+        # solved a tenth as many 4-cube towers (docs/recipe.md, "block-stacking's recipe")
         "reduced": ("slots.implicit=false", "slots.iterations=3", "train.segmentation_starts=1",
                     "train.segmentation_start_steps=0", "train.epochs=8", "train.polish_loss=slate",
                     "train.dynamics_prior=false", "train.dynamics_steps=2000", "train.render_steps=4000",
