@@ -562,8 +562,8 @@ def test_a_shipped_dslate_is_its_envs_reduced_preset(env):
     from ncs_lite.inference import SHIPPED_MODELS, read_checkpoint
 
     shipped = from_dict(read_checkpoint(SHIPPED_MODELS[env])["config"])
-    assert shipped == replace(get_preset("reduced", env), train=replace(get_preset("reduced", env).train,
-                                                                         seed=shipped.train.seed))
+    preset = get_preset("reduced", env)
+    assert shipped == replace(preset, train=replace(preset.train, seed=shipped.train.seed))
 
 
 def test_env_overrides_apply_to_their_preset_and_env_only():
