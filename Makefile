@@ -76,10 +76,14 @@ reproduce: $(STAMP)
 # Unit tests + every notebook under nbmake at the `ci` preset (tests/test_notebooks_envs.py runs
 # ENV_NOTEBOOKS once more with env=robogym-rearrange and once with env=block-stacking through
 # papermill). Figures of the test run go
-# to build/ so the committed `reduced` figures stay as they are.
+# to build/ so the committed `reduced` figures stay as they are. pytest-xdist runs the tests in
+# TEST_WORKERS processes, each test and notebook on one thread (THREADS), so the slow notebook
+# runs share the cores instead of queueing; TEST_WORKERS=0 runs them in this process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	NCS_LITE_PRESET=ci NCS_LITE_PROGRESS=0 NCS_LITE_FIGURES=$(BUILD)/test-figures \
-	  $(PY) -m pytest -q -p no:cacheprovider --nbmake --nbmake-timeout=900 tests notebooks
+	OMP_NUM_THREADS=$(THREADS) NCS_LITE_PRESET=ci NCS_LITE_PROGRESS=0 NCS_LITE_FIGURES=$(BUILD)/test-figures \
+	  $(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist worksteal --durations=12 \
+	  --nbmake --nbmake-timeout=900 tests notebooks
 
 bench: $(STAMP)
 	mkdir -p $(BUILD)/bench
