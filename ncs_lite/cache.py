@@ -18,6 +18,8 @@ floating-point order of a result.
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import time
@@ -191,21 +193,39 @@ def load_or_train(path: Path, *, unfit: Callable[[Path], str | None], unfinished
     (`unfinished(path)` None, else where it stopped) is loaded (`load(path)`); an unfinished one
     is resumed (`train(resume=True, force=False)`); an unfit one, or any with `from_scratch`,
     is trained again from scratch (`force=True`); no run, trained. Each decision but the first
-    is printed as `<who>: ...`."""
-    resume = force = False
-    if path.exists() and not from_scratch:
-        why = unfit(path)
-        if why is None:
-            left = unfinished(path)
-            if left is None:
-                return load(path)
-            resume = True
-            print(f"{who}: resuming {relative_to_repo(path)} {left}")
-        else:
+    is printed as `<who>: ...`. One process at a time decides and trains: another that asks for
+    the same run meanwhile (a second notebook, a parallel test worker) waits, then loads it."""
+    with _one_process_at_a_time(path, who):
+        resume = force = False
+        if path.exists() and not from_scratch:
+            why = unfit(path)
+            if why is None:
+                left = unfinished(path)
+                if left is None:
+                    return load(path)
+                resume = True
+                print(f"{who}: resuming {relative_to_repo(path)} {left}")
+            else:
+                force = True
+                print(f"{who}: retraining {relative_to_repo(path)} from scratch: {why}")
+        elif path.exists():
             force = True
-            print(f"{who}: retraining {relative_to_repo(path)} from scratch: {why}")
-    elif path.exists():
-        force = True
-        print(f"{who}: retraining {relative_to_repo(path)} from scratch (train_from_scratch=True)")
-    train(resume=resume, force=force)
-    return load(path)
+            print(f"{who}: retraining {relative_to_repo(path)} from scratch (train_from_scratch=True)")
+        train(resume=resume, force=force)
+        return load(path)
+
+
+@contextlib.contextmanager
+def _one_process_at_a_time(path: Path, who: str):
+    """Hold an exclusive lock on `<path>.obtain.lock`, waiting (and saying so) while another
+    process holds it. The file stays beside the run: a lock file removed on release could be
+    held by a waiter on the removed file and by a newcomer on a new one at once."""
+    lock = Path(f"{path}.obtain.lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "a") as f:                  # closing the file releases the lock
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            print(f"{who}: another process is making {relative_to_repo(path)}; waiting for it")
+            fcntl.flock(f, fcntl.LOCK_EX)
+        yield

@@ -401,6 +401,41 @@ def test_load_or_train_loads_resumes_or_retrains(tmp_path, capsys):
     assert trained[-1] == (False, True) and "train_from_scratch=True" in capsys.readouterr().out
 
 
+def test_load_or_train_waits_for_another_process_making_the_same_run(tmp_path, capsys):
+    """Two callers asking for one run at once (two notebooks, two test workers): the second
+    waits while the first trains, then loads the run instead of training it again (the run's
+    own lock would otherwise fail it). Threads stand in for processes: each opens the lock file
+    itself, and flock excludes two open files as it excludes two processes."""
+    import threading
+
+    from ncs_lite.cache import load_or_train
+
+    path, trained, training = tmp_path / "run.pt", [], threading.Event()
+    release = threading.Event()
+
+    def train(resume, force):
+        trained.append(threading.current_thread().name)
+        training.set()
+        assert release.wait(10)
+        path.write_text("run")
+
+    def obtain(results):
+        results.append(load_or_train(path, unfit=lambda p: None, unfinished=lambda p: None, train=train,
+                                     load=lambda p: p.read_text(), who="obtain"))
+
+    results = []
+    first = threading.Thread(target=obtain, args=(results,), name="first")
+    first.start()
+    assert training.wait(10)
+    second = threading.Thread(target=obtain, args=(results,), name="second")
+    second.start()
+    second.join(0.5)
+    assert second.is_alive() and "waiting for it" in capsys.readouterr().out     # blocked, not failed
+    release.set()
+    first.join(10), second.join(10)
+    assert results == ["run", "run"] and trained == ["first"]
+
+
 def test_buffer_transitions_cached_by_buffer_perception_and_code(tmp_path, monkeypatch, capsys):
     from ncs_lite.cache import code_digest
     from ncs_lite.ncs.perception import buffer_transitions
