@@ -546,13 +546,7 @@ def test_seeds_keep_a_run_of_an_earlier_recipe_to_extend_it(buffer, tmp_path):
     assert old.exists()
 
 
-@pytest.mark.parametrize("env", [
-    "block-rearrange",
-    pytest.param("robogym-rearrange", marks=pytest.mark.xfail(
-        strict=True, reason="robogym-rearrange's shipped dSLATE was trained with the recipe before implicit slot "
-                            "attention and the segmentation starts; `make robogym-assets` from its seeds table "
-                            "of the current recipe replaces it")),
-    "block-stacking"])
+@pytest.mark.parametrize("env", ["block-rearrange", "robogym-rearrange", "block-stacking"])
 def test_a_shipped_dslate_is_its_envs_reduced_preset(env):
     """What `make` would train is what ships: the shipped checkpoint's recipe is `reduced` with the
     env's ENV_OVERRIDES, up to the training seed its seeds table picked."""
