@@ -432,7 +432,8 @@ def test_load_or_train_waits_for_another_process_making_the_same_run(tmp_path, c
     second.join(0.5)
     assert second.is_alive() and "waiting for it" in capsys.readouterr().out     # blocked, not failed
     release.set()
-    first.join(10), second.join(10)
+    for thread in (first, second):
+        thread.join(10)
     assert results == ["run", "run"] and trained == ["first"]
 
 
