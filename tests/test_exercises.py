@@ -3,7 +3,7 @@ NotImplementedError with its hint, the masters' solutions pass their self-checks
 answer fails its self-check, and a student copy runs until its first exercise and stops there.
 
 The exercise sections need only their own imports cell, so most tests run them in-process
-(seconds); one test executes a whole student copy in a kernel at `ci`."""
+(seconds); one test executes each student copy's Exercises section in a kernel at `ci`."""
 import builtins
 import io
 import json
@@ -162,13 +162,25 @@ def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys, tmp_path, monk
         shell_module.InteractiveShell.clear_instance()
 
 
+def code_before_exercises(nb):
+    """The sources of the code cells before the Exercises heading."""
+    cells = nb["cells"]
+    start = next(i for i, c in enumerate(cells) if src(c).startswith("## Exercises"))
+    return [src(c) for c in cells[:start] if c["cell_type"] == "code"]
+
+
 @pytest.mark.parametrize("path", sorted((REPO / "exercises" / "student").glob("[0-9][0-9]_*.ipynb")),
                          ids=lambda p: p.stem)
 def test_student_copy_runs_to_its_first_exercise_and_stops_there(path, tmp_path):
-    """Execute a whole student copy at `ci` in a kernel, as nbmake would: the only error is
-    the NotImplementedError of its first exercise's stub."""
+    """Execute a student copy at `ci` in a kernel, as nbmake would: the only error is the
+    NotImplementedError of its first exercise's stub, shown in two lines. The code before
+    the Exercises heading is the master's, cell for cell, and nbmake runs the master, so the
+    kernel runs the banner and the Exercises section (which needs only its own imports)."""
     nbclient, nbformat = pytest.importorskip("nbclient"), pytest.importorskip("nbformat")
     nb = nbformat.read(path, as_version=4)
+    assert code_before_exercises(nb) == code_before_exercises(load(REPO / "notebooks" / path.name))
+    start = next(i for i, c in enumerate(nb.cells) if c.source.startswith("## Exercises"))
+    nb.cells = nb.cells[:1] + nb.cells[start:]                  # the banner, then the exercises
     env = {"NCS_LITE_PRESET": "ci", "NCS_LITE_PROGRESS": "0",
            "NCS_LITE_FIGURES": os.environ.get("NCS_LITE_FIGURES", str(tmp_path / "figures"))}
     old = {k: os.environ.get(k) for k in env}
