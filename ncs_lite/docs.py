@@ -882,7 +882,7 @@ def render_ablations_block(tables: dict) -> str:
              "seeds differ by more than the larger of their two standard deviations. Cells: mean ± sd "
              "(worst seed).", ""]
     header = ["undone (`--set`)", "seeds", "`ncs` on masks, 4", "`ncs` on masks, 7", "`ncs` on slot states, 7",
-              "fg-ARI 7, one start", "verdict"]
+              "`ncs` on masks, 7, one pass", "fg-ARI 7, one start", "verdict"]
     body, shown = [], set()         # each reference's own row once, before its first ablation
     for path, table in ablations.items():
         found = _ablation_reference(path, table, tables)
@@ -894,8 +894,10 @@ def render_ablations_block(tables: dict) -> str:
         if ref_path not in shown:
             shown.add(ref_path)
             body.append([f"the recipe: `{ref_path}`", str(len(reference["rows"])), *_headline_cells(reference), ""])
+        fewest = min(len(table["rows"]), len(reference["rows"]))
         moved = _moved(table, reference)
-        verdict = ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread"
+        verdict = (f"none yet: {fewest} seed, no spread" if fewest < 2 else
+                   ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread")
         body.append([" ".join(f"`{u}`" for u in undone), str(len(table["rows"])), *_headline_cells(table), verdict])
     if not body:
         return "\n".join(lines[:1] + ["", "No ablation has been run yet."]) + "\n"

@@ -321,7 +321,8 @@ def test_an_ablation_is_measured_against_the_recipe_it_extends():
               "ablations/no_prior/seeds_reduced.json": seeds(["slots.position_prior=0"], [0.5, 0.6, 0.7]),
               "ablations/segmentation_only/seeds_reduced.json": seeds(seg, [0.9, 0.9, 0.94]),
               "ablations/no_polish/seeds_reduced.json": seeds([*seg, "train.polish_steps=0"], [0.88, 0.9, 0.92]),
-              "ablations/other_env/seeds_reduced.json": {**seeds(["train.epochs=2"], [0.9]), "env": "robogym-rearrange"}}
+              "ablations/other_env/seeds_reduced.json": {**seeds(["train.epochs=2"], [0.9]), "env": "robogym-rearrange"},
+              "ablations/one_seed/seeds_reduced.json": seeds(["train.epochs=2"], [0.5])}
     block = render_ablations_block(tables)
     rows = {line.split(" | ")[0].lstrip("| "): line for line in block.splitlines() if line.startswith("| ")}
     assert "0.92 ± 0.02 (0.90)" in rows["the recipe: `seeds_reduced.json`"]
@@ -330,4 +331,7 @@ def test_an_ablation_is_measured_against_the_recipe_it_extends():
     assert "the recipe: `ablations/segmentation_only/seeds_reduced.json`" in rows
     assert rows["`train.polish_steps=0`"].endswith("within the seeds' spread |")
     assert rows["`ablations/other_env/seeds_reduced.json`: no seeds table of a recipe it extends"]
+    assert rows["`train.epochs=2`"].endswith("none yet: 1 seed, no spread |")       # one seed: no verdict
+    header = next(line for line in block.splitlines() if line.startswith("| undone"))
+    assert header.count("|") == rows["`train.epochs=2`"].count("|")              # a heading per column
     assert "No ablation has been run yet." in render_ablations_block({"seeds_reduced.json": tables["seeds_reduced.json"]})
