@@ -894,9 +894,8 @@ def render_ablations_block(tables: dict) -> str:
         if ref_path not in shown:
             shown.add(ref_path)
             body.append([f"the recipe: `{ref_path}`", str(len(reference["rows"])), *_headline_cells(reference), ""])
-        fewest = min(len(table["rows"]), len(reference["rows"]))
         moved = _moved(table, reference)
-        verdict = (f"none yet: {fewest} seed, no spread" if fewest < 2 else
+        verdict = ("none yet: one seed, no spread" if min(len(table["rows"]), len(reference["rows"])) < 2 else
                    ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread")
         body.append([" ".join(f"`{u}`" for u in undone), str(len(table["rows"])), *_headline_cells(table), verdict])
     if not body:

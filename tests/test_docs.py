@@ -331,7 +331,7 @@ def test_an_ablation_is_measured_against_the_recipe_it_extends():
     assert "the recipe: `ablations/segmentation_only/seeds_reduced.json`" in rows
     assert rows["`train.polish_steps=0`"].endswith("within the seeds' spread |")
     assert rows["`ablations/other_env/seeds_reduced.json`: no seeds table of a recipe it extends"]
-    assert rows["`train.epochs=2`"].endswith("none yet: 1 seed, no spread |")       # one seed: no verdict
+    assert rows["`train.epochs=2`"].endswith("none yet: one seed, no spread |")       # one seed: no verdict
     header = next(line for line in block.splitlines() if line.startswith("| undone"))
     assert header.count("|") == rows["`train.epochs=2`"].count("|")              # a heading per column
     assert "No ablation has been run yet." in render_ablations_block({"seeds_reduced.json": tables["seeds_reduced.json"]})

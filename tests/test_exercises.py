@@ -29,10 +29,14 @@ def src(cell):
     return "".join(cell["source"])
 
 
+def exercises_start(nb):
+    """The index of the cell of the Exercises heading."""
+    return next(i for i, c in enumerate(nb["cells"]) if src(c).startswith("## Exercises"))
+
+
 def exercise_section(nb):
     """The code cells from the Exercises heading on: imports, then (exercise, check) pairs."""
-    start = next(i for i, c in enumerate(nb["cells"]) if src(c).startswith("## Exercises"))
-    return [c for c in nb["cells"][start:] if c["cell_type"] == "code"]
+    return [c for c in nb["cells"][exercises_start(nb):] if c["cell_type"] == "code"]
 
 
 def run_cells(cells, namespace=None):
@@ -164,9 +168,7 @@ def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys, tmp_path, monk
 
 def code_before_exercises(nb):
     """The sources of the code cells before the Exercises heading."""
-    cells = nb["cells"]
-    start = next(i for i, c in enumerate(cells) if src(c).startswith("## Exercises"))
-    return [src(c) for c in cells[:start] if c["cell_type"] == "code"]
+    return [src(c) for c in nb["cells"][:exercises_start(nb)] if c["cell_type"] == "code"]
 
 
 @pytest.mark.parametrize("path", sorted((REPO / "exercises" / "student").glob("[0-9][0-9]_*.ipynb")),
@@ -179,8 +181,7 @@ def test_student_copy_runs_to_its_first_exercise_and_stops_there(path, tmp_path)
     nbclient, nbformat = pytest.importorskip("nbclient"), pytest.importorskip("nbformat")
     nb = nbformat.read(path, as_version=4)
     assert code_before_exercises(nb) == code_before_exercises(load(REPO / "notebooks" / path.name))
-    start = next(i for i, c in enumerate(nb.cells) if c.source.startswith("## Exercises"))
-    nb.cells = nb.cells[:1] + nb.cells[start:]                  # the banner, then the exercises
+    nb.cells = nb.cells[:1] + nb.cells[exercises_start(nb):]   # the banner, then the exercises
     env = {"NCS_LITE_PRESET": "ci", "NCS_LITE_PROGRESS": "0",
            "NCS_LITE_FIGURES": os.environ.get("NCS_LITE_FIGURES", str(tmp_path / "figures"))}
     old = {k: os.environ.get(k) for k in env}
