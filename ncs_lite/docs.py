@@ -850,20 +850,22 @@ def _ablation_reference(path: str, table: dict, tables: dict) -> tuple[str, dict
     return min(found, key=lambda f: f[:3])[2:] if found else None
 
 
-def _moved(table: dict, reference: dict) -> list[str]:
+def _moved(table: dict, reference: dict) -> list[str] | None:
     """The headlines (ABLATION_COLUMNS) whose mean over seeds differs from the reference's by
-    more than the larger of the two standard deviations: "`ncs` on masks, 7 objects 0.95 -> 0.60"."""
-    moved = []
+    more than the larger of the two standard deviations: "`ncs` on masks, 7 objects 0.95 -> 0.60".
+    A headline is compared only where both tables have a spread (two seeds or more); None when
+    none is."""
+    moved, compared = [], False
     for column in ABLATION_COLUMNS:
         a, b = _summary(table, column), _summary(reference, column)
-        if not a or not b:
+        if not a or not b or min(a["n"], b["n"]) < 2:
             continue
-        spread = max(float(s["sd"]) if math.isfinite(float(s["sd"])) else 0.0 for s in (a, b))   # one seed: no sd
-        if abs(a["mean"] - b["mean"]) > spread:
+        compared = True
+        if abs(a["mean"] - b["mean"]) > max(float(a["sd"]), float(b["sd"])):
             _, _, template, groups, kind, _ = _column(column)
             label = _label(template, groups, _state(table))
             moved.append(f"{label} {format_value(b['mean'], kind)} -> {format_value(a['mean'], kind)}")
-    return moved
+    return moved if compared else None
 
 
 def _headline_cells(table: dict) -> list[str]:
@@ -895,8 +897,12 @@ def render_ablations_block(tables: dict) -> str:
             shown.add(ref_path)
             body.append([f"the recipe: `{ref_path}`", str(len(reference["rows"])), *_headline_cells(reference), ""])
         moved = _moved(table, reference)
-        verdict = ("none yet: one seed, no spread" if min(len(table["rows"]), len(reference["rows"])) < 2 else
-                   ("**moves**: " + "; ".join(moved)) if moved else "within the seeds' spread")
+        if moved is None:
+            verdict = "none yet: one seed, no spread"
+        elif moved:
+            verdict = "**moves**: " + "; ".join(moved)
+        else:
+            verdict = "within the seeds' spread"
         body.append([" ".join(f"`{u}`" for u in undone), str(len(table["rows"])), *_headline_cells(table), verdict])
     if not body:
         return "\n".join(lines[:1] + ["", "No ablation has been run yet."]) + "\n"

@@ -39,6 +39,11 @@ def exercise_section(nb):
     return [c for c in nb["cells"][exercises_start(nb):] if c["cell_type"] == "code"]
 
 
+def code_before_exercises(nb):
+    """The sources of the code cells before the Exercises heading."""
+    return [src(c) for c in nb["cells"][:exercises_start(nb)] if c["cell_type"] == "code"]
+
+
 def run_cells(cells, namespace=None):
     namespace = {"__name__": "__exercise__", "__builtins__": builtins} if namespace is None else namespace
     out = io.StringIO()
@@ -164,11 +169,6 @@ def test_a_verdict_in_ipython_is_its_line_not_a_traceback(capsys, tmp_path, monk
         assert result.result is None and result.success      # nothing for `Out[n]`
     finally:
         shell_module.InteractiveShell.clear_instance()
-
-
-def code_before_exercises(nb):
-    """The sources of the code cells before the Exercises heading."""
-    return [src(c) for c in nb["cells"][:exercises_start(nb)] if c["cell_type"] == "code"]
 
 
 @pytest.mark.parametrize("path", sorted((REPO / "exercises" / "student").glob("[0-9][0-9]_*.ipynb")),
